@@ -1,0 +1,49 @@
+"""posegraph: SE(3) pose-graph optimisation over g2o files.
+
+Three lines from a file to an optimised file::
+
+    import posegraph
+    graph = posegraph.read_g2o("in.g2o")
+    result = posegraph.optimize(graph)            # chordal start, then Levenberg-Marquardt
+    posegraph.write_g2o("out.g2o", graph, result.poses)
+
+The Lie-group core is in :mod:`posegraph.lie` (``so3``, ``se3``). Names below are imported on first
+use, so ``import posegraph`` stays cheap (no scipy, gtsam, Open3D or matplotlib at start-up).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+# public name -> module that defines it
+_LAZY = {
+    "PoseGraph": "posegraph.graph",
+    "graph_facts": "posegraph.graph",
+    "read_g2o": "posegraph.io.g2o",
+    "write_g2o": "posegraph.io.g2o",
+    "cost": "posegraph.solve.residuals",
+    "edge_residuals": "posegraph.solve.residuals",
+    "optimize": "posegraph.solve",
+    "SolverParams": "posegraph.solve",
+    "OptimizeResult": "posegraph.solve",
+    "initialize": "posegraph.init",
+    "InputError": "posegraph.errors",
+}
+
+__all__ = sorted(_LAZY) + ["lie"]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    if name == "lie":
+        return importlib.import_module("posegraph.lie")
+    raise AttributeError(f"module 'posegraph' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__

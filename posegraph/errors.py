@@ -1,0 +1,43 @@
+"""Errors and warnings raised on a user's input.
+
+Every error caused by a user's file derives from :class:`InputError` (a
+``ValueError``), carries the file, the 1-based line number (``None`` when the
+problem is not tied to one line) and the reason, and prints as
+``file:line: reason`` so the command line can show it as one line.
+"""
+
+from __future__ import annotations
+
+__all__ = ["InputError", "G2oFormatError", "GraphError", "OutputError", "InputWarning"]
+
+
+class InputError(ValueError):
+    """A user's input cannot be used. ``str(err)`` is ``"path:line: reason"``."""
+
+    def __init__(self, reason: str, path: str | None = None, line: int | None = None):
+        self.reason = reason
+        self.path = path
+        self.line = line
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = self.path if self.path is not None else "<input>"
+        if self.line is not None:
+            where = f"{where}:{self.line}"
+        return f"{where}: {self.reason}"
+
+
+class G2oFormatError(InputError):
+    """A line of a g2o file is malformed (field count, number syntax, NaN, bad quaternion or information)."""
+
+
+class GraphError(InputError):
+    """The file parses but does not describe a usable pose graph (duplicate id, missing vertex, self-loop, empty)."""
+
+
+class OutputError(InputError):
+    """An output cannot be written as asked (it would overwrite the input, or its folder does not exist)."""
+
+
+class InputWarning(UserWarning):
+    """Something in the input was repaired or skipped (normalised quaternion, unknown tags, several components)."""

@@ -1,0 +1,152 @@
+"""The pose-graph model: vertices, edges and fixed vertices stored as arrays.
+
+A :class:`PoseGraph` holds everything as numpy arrays so that the solver and
+the initialisers never loop over vertices or edges in Python.
+
+Conventions
+-----------
+* Vertex ``k`` (``0 <= k < n``) has the user's integer id ``ids[k]``; ids need
+  not be ``0..n-1`` nor sorted. Edges refer to vertices by *index* ``k``, not id.
+* ``poses[k]`` is the ``(4, 4)`` SE(3) matrix ``X_k`` (world-from-body).
+* Edge ``e`` goes from ``edge_from[e] = i`` to ``edge_to[e] = j`` and measures
+  ``Z_ij ≈ X_i⁻¹ X_j``; its residual is ``Log(Z_ij⁻¹ X_i⁻¹ X_j)`` in ``[ω; v]``
+  order and ``information[e]`` is the ``(6, 6)`` matrix Ω in that same
+  ``[ω; v]`` order (the g2o reader permutes g2o's ``[v; ω]`` on reading).
+* ``fixed`` is a boolean mask of the vertices held constant (g2o ``FIX``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+__all__ = ["PoseGraph", "GraphFacts", "connected_components", "component_anchors", "graph_facts"]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseGraph:
+    """A 3D pose graph stored as arrays (see the module docstring for conventions)."""
+
+    ids: np.ndarray
+    """``(n,)`` int64 — the user's vertex ids, in file order."""
+    poses: np.ndarray
+    """``(n, 4, 4)`` float64 — vertex poses ``X_k`` (initial values as read)."""
+    edge_from: np.ndarray
+    """``(m,)`` int64 — index ``i`` (into ``ids``) of each edge's first vertex."""
+    edge_to: np.ndarray
+    """``(m,)`` int64 — index ``j`` of each edge's second vertex."""
+    measurements: np.ndarray
+    """``(m, 4, 4)`` float64 — measured relative poses ``Z_ij``."""
+    information: np.ndarray
+    """``(m, 6, 6)`` float64 — information matrices Ω in ``[ω; v]`` order."""
+    fixed: np.ndarray = field(default=None)  # type: ignore[assignment]
+    """``(n,)`` bool — vertices held constant (g2o ``FIX``); all False if None is given."""
+    source: str | None = None
+    """Path the graph was read from, if any (used in messages)."""
+
+    def __post_init__(self) -> None:
+        if self.fixed is None:
+            object.__setattr__(self, "fixed", np.zeros(len(self.ids), dtype=bool))
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.ids.shape[0])
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.edge_from.shape[0])
+
+    def with_poses(self, poses: np.ndarray) -> "PoseGraph":
+        """The same graph with other vertex poses ``(n, 4, 4)``."""
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != self.poses.shape:
+            raise ValueError(f"poses must have shape {self.poses.shape}, got {poses.shape}")
+        return replace(self, poses=poses)
+
+    def index_of(self, ids) -> np.ndarray:
+        """Vertex indices of the given ids (``KeyError`` if one is absent)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        order = np.argsort(self.ids, kind="stable")
+        pos = np.searchsorted(self.ids, ids, sorter=order)
+        pos = np.clip(pos, 0, len(order) - 1)
+        found = order[pos]
+        if not np.all(self.ids[found] == ids):
+            missing = ids[self.ids[found] != ids]
+            raise KeyError(f"vertex ids not in graph: {missing[:5].tolist()}")
+        return found
+
+    def odometry_mask(self) -> np.ndarray:
+        """``(m,)`` bool: True for odometry edges (``|id_i − id_j| = 1``), False for loop closures."""
+        return np.abs(self.ids[self.edge_from] - self.ids[self.edge_to]) == 1
+
+
+def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
+    """Connected components of the undirected vertex/edge graph.
+
+    Returns ``(count, labels)`` with ``labels`` ``(n,)`` int in ``[0, count)``.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as _cc
+
+    n = graph.num_vertices
+    adjacency = coo_matrix(
+        (np.ones(graph.num_edges), (graph.edge_from, graph.edge_to)), shape=(n, n)
+    ).tocsr()
+    count, labels = _cc(adjacency, directed=False)
+    return int(count), labels
+
+
+def component_anchors(graph: PoseGraph) -> np.ndarray:
+    """One gauge anchor per connected component that has no fixed vertex.
+
+    The anchor of such a component is its vertex with the smallest id (gtsam's
+    examples and g2o anchor the first pose; for a file in id order that is the
+    same vertex). Components with a ``FIX`` vertex need no anchor: the fixed
+    vertices already remove the gauge freedom. Returns the vertex indices,
+    sorted.
+    """
+    count, labels = connected_components(graph)
+    has_fixed = np.zeros(count, dtype=bool)
+    has_fixed[labels[graph.fixed]] = True
+    # Smallest id per component: sort by (label, id) and take the first of each label.
+    order = np.lexsort((graph.ids, labels))
+    first = order[np.r_[True, labels[order][1:] != labels[order][:-1]]]
+    return np.sort(first[~has_fixed[labels[first]]])
+
+
+@dataclass(frozen=True)
+class GraphFacts:
+    """Summary counts of a pose graph (what ``posegraph info`` prints)."""
+
+    num_vertices: int
+    num_edges: int
+    num_fixed: int
+    num_components: int
+    degree_min: int
+    degree_max: int
+    degree_mean: float
+    degree_median: float
+    num_odometry_edges: int
+    num_loop_closures: int
+
+
+def graph_facts(graph: PoseGraph) -> GraphFacts:
+    """Counts, components and degree statistics of ``graph``."""
+    degree = np.bincount(graph.edge_from, minlength=graph.num_vertices) + np.bincount(
+        graph.edge_to, minlength=graph.num_vertices
+    )
+    count, _ = connected_components(graph)
+    odometry = int(np.count_nonzero(graph.odometry_mask()))
+    return GraphFacts(
+        num_vertices=graph.num_vertices,
+        num_edges=graph.num_edges,
+        num_fixed=int(np.count_nonzero(graph.fixed)),
+        num_components=count,
+        degree_min=int(degree.min()) if degree.size else 0,
+        degree_max=int(degree.max()) if degree.size else 0,
+        degree_mean=float(degree.mean()) if degree.size else 0.0,
+        degree_median=float(np.median(degree)) if degree.size else 0.0,
+        num_odometry_edges=odometry,
+        num_loop_closures=graph.num_edges - odometry,
+    )

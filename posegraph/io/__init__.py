@@ -1,0 +1,1 @@
+"""Reading and writing pose-graph files."""
