@@ -67,6 +67,10 @@ class PoseGraph:
     def index_of(self, ids) -> np.ndarray:
         """Vertex indices of the given ids (``KeyError`` if one is absent)."""
         ids = np.asarray(ids, dtype=np.int64)
+        if self.num_vertices == 0:
+            if ids.size:
+                raise KeyError(f"vertex ids not in graph: {ids.reshape(-1)[:5].tolist()}")
+            return np.zeros(ids.shape, dtype=np.int64)
         order = np.argsort(self.ids, kind="stable")
         pos = np.searchsorted(self.ids, ids, sorter=order)
         pos = np.clip(pos, 0, len(order) - 1)
@@ -77,8 +81,17 @@ class PoseGraph:
         return found
 
     def odometry_mask(self) -> np.ndarray:
-        """``(m,)`` bool: True for odometry edges (``|id_i − id_j| = 1``), False for loop closures."""
-        return np.abs(self.ids[self.edge_from] - self.ids[self.edge_to]) == 1
+        """``(m,)`` bool: True for odometry edges, False for loop closures.
+
+        An edge is odometry when its two vertices are neighbours in id order:
+        ``|rank(id_i) − rank(id_j)| = 1``, where ``rank`` is the position in the
+        sorted ids. For ids ``0..n−1`` this is ``|id_i − id_j| = 1``; it also
+        holds for sparse ids (keyframes 0, 5, 10…) and for files that list the
+        vertices out of order.
+        """
+        rank = np.empty(self.num_vertices, dtype=np.int64)
+        rank[np.argsort(self.ids, kind="stable")] = np.arange(self.num_vertices)
+        return np.abs(rank[self.edge_from] - rank[self.edge_to]) == 1
 
 
 def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:

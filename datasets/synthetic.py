@@ -1,0 +1,664 @@
+"""Synthetic 3D pose graphs with ground truth: sphere, torus, 3D grid, parking garage.
+
+Every generator builds ground-truth poses ``X_k`` (world-from-body, ``(n, 4, 4)``), the odometry
+chain ``k → k+1`` and a set of candidate loop closures, then makes the measurements the way the
+cost assumes they were made::
+
+    Z_ij = (X_i⁻¹ X_j) · Exp(δ),   δ ~ N(0, Σ),   Σ = diag(σ_rot² I₃, σ_trans² I₃)   ([ω; v] order)
+
+with information Ω = Σ⁻¹ on every edge. So at the ground truth each edge's residual
+``Log(Z⁻¹ X_i⁻¹ X_j) = −δ`` and ``2 · cost(ground truth)`` is χ²-distributed with ``6 m``
+degrees of freedom (mean ``3 m`` for the cost) when there are no outliers. The initial values of
+the returned graph are the noisy odometry composed from the ground-truth first pose (vertex 0,
+the gauge anchor), as in g2o's ``create_sphere``.
+
+Loop closures: a fraction ``loop_closure_density`` of each shape's candidates is kept (chosen by
+the generator's random stream). Outliers: ``outlier_fraction`` of all loop closures are wrong
+data associations — edges between two random, non-consecutive vertices whose measurement is the
+relative pose of some *other* true loop closure (plus loop-closure noise), so that an outlier
+looks like an inlier until it is checked against the rest of the graph (the perceptual-aliasing
+failure robust back ends are tested on; Sünderhauf & Protzel, "Switchable constraints", 2012).
+
+Edges are ordered by their newer vertex, then the older one, as a front end emits them; odometry
+edges point ``k → k+1``, loop closures from the older vertex to the newer.
+
+Everything is drawn from ``np.random.default_rng(seed)`` in a fixed order, so the same arguments
+give the same graph, bit for bit, and the same files.
+
+Command line (writes ``OUT`` and ``OUT``'s ``_groundtruth.g2o`` sibling)::
+
+    python -m datasets.synthetic sphere --size 2500 -o sphere.g2o
+    python -m datasets.synthetic grid --size 8000 --loop-density 0.5 --outliers 0.1 -o grid.g2o
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from posegraph.graph import PoseGraph
+from posegraph.lie import se3, so3
+
+__all__ = [
+    "NoiseParams",
+    "SyntheticDataset",
+    "sphere",
+    "torus",
+    "grid",
+    "garage",
+    "generate",
+    "SHAPES",
+    "groundtruth_path",
+    "write_dataset",
+    "main",
+]
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Measurement noise, loop-closure density and outliers of a synthetic graph.
+
+    Sigmas are standard deviations of the right perturbation ``δ = [ω; v]`` in
+    ``Z = Z_true · Exp(δ)``: radians for rotation, the shape's length unit (metres) for translation.
+    """
+
+    odometry_rotation_sigma: float = 0.01
+    """σ of each rotation component of an odometry edge's noise (rad)."""
+    odometry_translation_sigma: float = 0.05
+    """σ of each translation component of an odometry edge's noise (m)."""
+    loop_rotation_sigma: float = 0.01
+    """σ of each rotation component of a loop closure's noise (rad)."""
+    loop_translation_sigma: float = 0.05
+    """σ of each translation component of a loop closure's noise (m)."""
+    loop_closure_density: float = 1.0
+    """Fraction in [0, 1] of the shape's candidate loop closures that are kept."""
+    outlier_fraction: float = 0.0
+    """Fraction in [0, 1) of all loop closures (inliers + outliers) that are outliers."""
+    noiseless: bool = False
+    """If True the measurements are the exact relative poses (the information still states the
+    sigmas above): the ground truth is then an exact minimum with cost 0 (outliers excepted)."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "odometry_rotation_sigma",
+            "odometry_translation_sigma",
+            "loop_rotation_sigma",
+            "loop_translation_sigma",
+        ):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r} (use noiseless=True for exact measurements)")
+        if not 0.0 <= self.loop_closure_density <= 1.0:
+            raise ValueError(f"loop_closure_density must be in [0, 1], got {self.loop_closure_density!r}")
+        if not 0.0 <= self.outlier_fraction < 1.0:
+            raise ValueError(f"outlier_fraction must be in [0, 1), got {self.outlier_fraction!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticDataset:
+    """A generated pose graph and its ground truth.
+
+    Unpacks as ``graph, ground_truth = sphere(...)``.
+    """
+
+    name: str
+    """Shape and size, e.g. ``"sphere_50x50"``."""
+    graph: PoseGraph
+    """The noisy graph; its poses are the composed noisy odometry (vertex 0 at the ground truth)."""
+    ground_truth: np.ndarray
+    """``(n, 4, 4)`` true poses."""
+    outliers: np.ndarray
+    """``(m,)`` bool — True for the outlier loop closures."""
+    odometry: np.ndarray
+    """``(m,)`` bool — True for the odometry edges (``k → k+1``)."""
+    parameters: dict = field(default_factory=dict)
+    """The arguments it was generated with (shape parameters, noise, seed)."""
+
+    def __iter__(self):
+        return iter((self.graph, self.ground_truth))
+
+    @property
+    def num_loop_closures(self) -> int:
+        """Loop closures, outliers included."""
+        return int(np.count_nonzero(~self.odometry))
+
+
+# --------------------------------------------------------------------------------------------
+# Shared machinery: ground truth + candidate loop closures -> noisy graph
+
+
+def _rotation_z(angle: np.ndarray) -> np.ndarray:
+    angle = np.asarray(angle, dtype=np.float64)
+    axis = np.zeros(angle.shape + (3,))
+    axis[..., 2] = angle
+    return so3.exp(axis)
+
+
+def _rotation_y(angle: np.ndarray) -> np.ndarray:
+    angle = np.asarray(angle, dtype=np.float64)
+    axis = np.zeros(angle.shape + (3,))
+    axis[..., 1] = angle
+    return so3.exp(axis)
+
+
+def _random_rotations(rng: np.random.Generator, count: int) -> np.ndarray:
+    """``(count, 3, 3)`` rotations uniform on SO(3): normalised 4D Gaussians are uniform unit quaternions
+    (and so is any permutation of their components, so the quaternion order does not matter)."""
+    q = rng.standard_normal((count, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return so3.from_quaternion(q)
+
+
+def _frames_from_axes(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Rotations ``(..., 3, 3)`` whose x axis is ``forward`` and whose z axis is ``up`` made
+    orthogonal to it (Gram-Schmidt); y = z × x completes a right-handed frame."""
+    x = forward / np.linalg.norm(forward, axis=-1, keepdims=True)
+    z = up - np.sum(up * x, axis=-1, keepdims=True) * x
+    z /= np.linalg.norm(z, axis=-1, keepdims=True)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=-1)
+
+
+def _compose_chain(first: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Poses ``X_0 = first``, ``X_{k+1} = X_k · Z_k`` for steps ``(n-1, 4, 4)``; returns ``(n, 4, 4)``.
+
+    An inclusive prefix product by recursive doubling (Hillis & Steele): after the pass with
+    shift ``s`` entry ``k`` holds ``Z_{k-2s+1} ⋯ Z_k``; the earlier factor always stays on the
+    left, so the non-commutative product is exact in ⌈log₂ n⌉ batched compositions.
+    """
+    prefix = np.array(steps, dtype=np.float64, copy=True)
+    shift = 1
+    while shift < len(prefix):
+        prefix[shift:] = se3.compose(prefix[:-shift], prefix[shift:])
+        shift *= 2
+    return np.concatenate([first[None], se3.compose(first[None], prefix)], axis=0)
+
+
+def _information(rotation_sigma: float, translation_sigma: float) -> np.ndarray:
+    """``diag(σ_rot⁻² I₃, σ_trans⁻² I₃)`` rounded to 12 significant digits, so that files read
+    ``400`` rather than ``399.99999999999994`` for σ = 0.05 (a 1e-16 relative change)."""
+    diagonal = np.array([rotation_sigma**-2] * 3 + [translation_sigma**-2] * 3)
+    return np.diag([float(f"{value:.12g}") for value in diagonal])
+
+
+def _build(
+    name: str,
+    truth: np.ndarray,
+    loop_candidates: np.ndarray,
+    noise: NoiseParams,
+    rng: np.random.Generator,
+    parameters: dict,
+) -> SyntheticDataset:
+    """Noisy graph from ground truth ``(n, 4, 4)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer)."""
+    n = len(truth)
+    if n < 2:
+        raise ValueError(f"{name}: a pose graph needs at least 2 poses, got {n}")
+    loop_candidates = np.asarray(loop_candidates, dtype=np.int64).reshape(-1, 2)
+    # A candidate joining consecutive poses would duplicate an odometry edge (the sphere's ring seam).
+    loop_candidates = loop_candidates[np.abs(loop_candidates[:, 1] - loop_candidates[:, 0]) != 1]
+
+    # 1. Which loop closures are kept.
+    keep = int(round(noise.loop_closure_density * len(loop_candidates)))
+    chosen = np.sort(rng.choice(len(loop_candidates), size=keep, replace=False)) if keep else np.zeros(0, np.int64)
+    loops = loop_candidates[chosen]
+
+    # 2. Outliers: outliers / (inliers + outliers) = outlier_fraction.
+    f = noise.outlier_fraction
+    num_outliers = int(round(f / (1.0 - f) * len(loops))) if f > 0 else 0
+    if num_outliers and n < 3:
+        raise ValueError(f"{name}: outliers need at least 3 poses")
+    # Random pairs, never a self-loop, an odometry pair, a true loop-closure candidate (its
+    # measurement could be nearly right) or a pair drawn twice.
+    true_codes = np.sort(loop_candidates, axis=1) @ np.array([n, 1]) if len(loop_candidates) else np.zeros(0, np.int64)
+    outlier_pairs = np.zeros((0, 2), np.int64)
+    possible = n * (n - 1) // 2 - (n - 1) - len(np.unique(true_codes))
+    if num_outliers > possible:
+        raise ValueError(f"{name}: {num_outliers} outliers asked but only {possible} vertex pairs are free")
+    while len(outlier_pairs) < num_outliers:
+        draw = np.sort(rng.integers(0, n, size=(2 * num_outliers + 8, 2)), axis=1)
+        draw = draw[draw[:, 1] - draw[:, 0] > 1]
+        draw = draw[~np.isin(draw @ np.array([n, 1]), true_codes)]
+        merged = np.concatenate([outlier_pairs, draw])
+        _, first = np.unique(merged @ np.array([n, 1]), return_index=True)
+        outlier_pairs = merged[np.sort(first)][:num_outliers]
+
+    odometry_pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+    pairs = np.concatenate([odometry_pairs, loops, outlier_pairs])
+    m = len(pairs)
+    is_odometry = np.zeros(m, bool)
+    is_odometry[: n - 1] = True
+    is_outlier = np.zeros(m, bool)
+    is_outlier[m - num_outliers :] = True
+
+    # 3. Exact measurements; an outlier borrows a random true loop closure's relative pose
+    #    (or a random relative pose when the shape has no loop closures to borrow from).
+    exact = se3.between(truth[pairs[:, 0]], truth[pairs[:, 1]])
+    if num_outliers:
+        if len(loop_candidates):
+            donors = loop_candidates[rng.integers(0, len(loop_candidates), size=num_outliers)]
+            exact[is_outlier] = se3.between(truth[donors[:, 0]], truth[donors[:, 1]])
+        else:
+            exact[is_outlier] = se3.from_rotation_translation(
+                _random_rotations(rng, num_outliers), rng.uniform(-1.0, 1.0, size=(num_outliers, 3))
+            )
+
+    # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in [ω; v] order.
+    sigmas = np.empty((m, 6))
+    sigmas[is_odometry, :3] = noise.odometry_rotation_sigma
+    sigmas[is_odometry, 3:] = noise.odometry_translation_sigma
+    sigmas[~is_odometry, :3] = noise.loop_rotation_sigma
+    sigmas[~is_odometry, 3:] = noise.loop_translation_sigma
+    delta = rng.standard_normal((m, 6)) * sigmas
+    if noise.noiseless:
+        delta[:] = 0.0
+    measurements = se3.compose(exact, se3.exp(delta))
+
+    information = np.empty((m, 6, 6))
+    information[is_odometry] = _information(noise.odometry_rotation_sigma, noise.odometry_translation_sigma)
+    information[~is_odometry] = _information(noise.loop_rotation_sigma, noise.loop_translation_sigma)
+
+    # 5. Initial values: noisy odometry composed from the true first pose.
+    initial = _compose_chain(truth[0], measurements[: n - 1])
+
+    # 6. Front-end order: by newer vertex, then older.
+    order = np.lexsort((pairs[:, 0], pairs[:, 1]))
+    graph = PoseGraph(
+        ids=np.arange(n, dtype=np.int64),
+        poses=initial,
+        edge_from=pairs[order, 0].copy(),
+        edge_to=pairs[order, 1].copy(),
+        measurements=measurements[order],
+        information=information[order],
+    )
+    return SyntheticDataset(
+        name=name,
+        graph=graph,
+        ground_truth=truth,
+        outliers=is_outlier[order],
+        odometry=is_odometry[order],
+        parameters=parameters,
+    )
+
+
+def _ring_neighbours(older_start: np.ndarray, newer_start: np.ndarray, ring: int, offsets=(-1, 0, 1)) -> np.ndarray:
+    """Pairs tying node ``k`` of each newer ring to nodes ``k + d (mod ring)`` of the older ring."""
+    k = np.arange(ring)
+    pairs = [
+        np.stack(
+            [
+                (older_start[:, None] + (k[None, :] + d) % ring).ravel(),
+                (newer_start[:, None] + k[None, :]).ravel(),
+            ],
+            axis=1,
+        )
+        for d in offsets
+    ]
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
+
+
+def _check_count(name: str, value: int, minimum: int) -> int:
+    if int(value) != value or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+# --------------------------------------------------------------------------------------------
+# Shapes
+
+
+def sphere(
+    rings: int = 50,
+    nodes_per_ring: int = 50,
+    radius: float = 100.0,
+    *,
+    noise: NoiseParams = NoiseParams(),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A robot circling a sphere ring by ring, as g2o's ``create_sphere`` (``sphere2500`` is 50 × 50).
+
+    Pose ``k = f·N + j`` (ring ``f``, node ``j``, ``N = nodes_per_ring``) has rotation
+    ``R = R_z(−π + 2πj/N) · R_y(−π/2 + (k+1)π/(rings·N))`` and position ``R · [radius, 0, 0]``:
+    the latitude climbs a little at every step, so the rings form one spiral from pole to pole.
+    Loop closures tie node ``j`` of ring ``f`` to nodes ``j−1, j, j+1`` (mod N) of ring ``f−1``,
+    except the pair at each ring seam that is already an odometry edge: ``3N − 1`` per ring after
+    the first.
+    """
+    L = _check_count("rings", rings, 1)
+    N = _check_count("nodes_per_ring", nodes_per_ring, 3)
+    k = np.arange(L * N)
+    j = k % N
+    rotation = _rotation_z(-np.pi + 2 * np.pi * j / N) @ _rotation_y(-0.5 * np.pi + (k + 1) * np.pi / (L * N))
+    position = radius * rotation[:, :, 0]
+    truth = se3.from_rotation_translation(rotation, position)
+    ring_start = np.arange(L) * N
+    candidates = _ring_neighbours(ring_start[:-1], ring_start[1:], N)
+    rng = np.random.default_rng(seed)
+    params = dict(shape="sphere", rings=L, nodes_per_ring=N, radius=radius, noise=noise, seed=seed)
+    return _build(f"sphere_{L}x{N}", truth, candidates, noise, rng, params)
+
+
+def torus(
+    rings: int = 40,
+    nodes_per_ring: int = 100,
+    major_radius: float = 15.0,
+    minor_radius: float = 5.0,
+    *,
+    noise: NoiseParams = NoiseParams(),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A robot driving laps around a torus, each lap a little further round the tube.
+
+    Pose ``k = f·N + j`` sits at major angle ``φ = 2πj/N`` and minor angle
+    ``θ = 2πk/(rings·N)`` (a helix that covers the surface once), at
+    ``((R + r cos θ) cos φ, (R + r cos θ) sin φ, r sin θ)``, facing along the lap (x axis) with z
+    along the surface normal. Loop closures tie node ``j`` of lap ``f`` to nodes ``j−1, j, j+1``
+    (mod N) of lap ``f−1``, and the last lap to the first, which closes the tube (minus the pair at
+    each lap seam that is already an odometry edge: ``3N·rings − (rings − 1)`` in all).
+    """
+    L = _check_count("rings", rings, 2)
+    N = _check_count("nodes_per_ring", nodes_per_ring, 3)
+    if not 0 < minor_radius < major_radius:
+        raise ValueError(f"need 0 < minor_radius < major_radius, got {minor_radius!r}, {major_radius!r}")
+    k = np.arange(L * N)
+    phi = 2 * np.pi * (k % N) / N
+    theta = 2 * np.pi * k / (L * N)
+    ring_radius = major_radius + minor_radius * np.cos(theta)
+    position = np.stack([ring_radius * np.cos(phi), ring_radius * np.sin(phi), minor_radius * np.sin(theta)], axis=1)
+    forward = np.stack([-np.sin(phi), np.cos(phi), np.zeros_like(phi)], axis=1)
+    normal = np.stack([np.cos(theta) * np.cos(phi), np.cos(theta) * np.sin(phi), np.sin(theta)], axis=1)
+    truth = se3.from_rotation_translation(_frames_from_axes(forward, normal), position)
+    ring_start = np.arange(L) * N
+    candidates = np.concatenate(
+        [
+            _ring_neighbours(ring_start[:-1], ring_start[1:], N),
+            # closing the tube: the first lap is the older one
+            _ring_neighbours(ring_start[-1:], ring_start[:1], N)[:, ::-1],
+        ]
+    )
+    rng = np.random.default_rng(seed)
+    params = dict(
+        shape="torus", rings=L, nodes_per_ring=N, major_radius=major_radius, minor_radius=minor_radius, noise=noise, seed=seed
+    )
+    return _build(f"torus_{L}x{N}", truth, candidates, noise, rng, params)
+
+
+def grid(
+    nx: int = 10,
+    ny: int = 10,
+    nz: int = 10,
+    spacing: float = 1.0,
+    *,
+    random_orientation: bool = True,
+    noise: NoiseParams = NoiseParams(),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A robot visiting every point of an ``nx × ny × nz`` lattice in a snake (boustrophedon) path.
+
+    Odometry follows the path (consecutive points are lattice neighbours); every other pair of
+    lattice neighbours (6-connectivity) is a candidate loop closure, as in ``smallGrid3D``. With
+    ``random_orientation`` each pose has a rotation uniform on SO(3) (``smallGrid3D`` does too),
+    otherwise it faces along its direction of travel.
+    """
+    nx = _check_count("nx", nx, 1)
+    ny = _check_count("ny", ny, 1)
+    nz = _check_count("nz", nz, 1)
+    # Snake path: rows along x, alternating direction with the global row number; rows snake in y
+    # within a layer, alternating direction with the layer.
+    z = np.repeat(np.arange(nz), ny * nx)
+    y_in_layer = np.tile(np.repeat(np.arange(ny), nx), nz)
+    y = np.where(z % 2 == 0, y_in_layer, ny - 1 - y_in_layer)
+    row = z * ny + y_in_layer
+    x_in_row = np.tile(np.arange(nx), ny * nz)
+    x = np.where(row % 2 == 0, x_in_row, nx - 1 - x_in_row)
+    n = nx * ny * nz
+    position = spacing * np.stack([x, y, z], axis=1).astype(np.float64)
+
+    rng = np.random.default_rng(seed)
+    if random_orientation:
+        rotation = _random_rotations(rng, n)
+    else:
+        step = np.diff(position, axis=0)
+        forward = np.concatenate([step, step[-1:]]) if n > 1 else np.array([[1.0, 0, 0]])
+        up = np.where(np.abs(forward[:, 2:3]) > 0.5 * spacing, np.array([[1.0, 0, 0]]), np.array([[0, 0, 1.0]]))
+        rotation = _frames_from_axes(forward, up)
+    truth = se3.from_rotation_translation(rotation, position)
+
+    # Path index of every lattice point, then all neighbour pairs along each axis.
+    index = np.empty((nx, ny, nz), np.int64)
+    index[x, y, z] = np.arange(n)
+    neighbours = np.concatenate(
+        [
+            np.stack([index[:-1, :, :].ravel(), index[1:, :, :].ravel()], axis=1),
+            np.stack([index[:, :-1, :].ravel(), index[:, 1:, :].ravel()], axis=1),
+            np.stack([index[:, :, :-1].ravel(), index[:, :, 1:].ravel()], axis=1),
+        ]
+    )
+    neighbours = np.sort(neighbours, axis=1)
+    candidates = neighbours[neighbours[:, 1] - neighbours[:, 0] > 1]
+    candidates = candidates[np.lexsort((candidates[:, 0], candidates[:, 1]))]
+    params = dict(shape="grid", nx=nx, ny=ny, nz=nz, spacing=spacing, random_orientation=random_orientation, noise=noise, seed=seed)
+    return _build(f"grid_{nx}x{ny}x{nz}", truth, candidates, noise, rng, params)
+
+
+def garage(
+    floors: int = 4,
+    laps_per_floor: int = 2,
+    nodes_per_lap: int = 200,
+    length: float = 60.0,
+    width: float = 20.0,
+    floor_height: float = 3.0,
+    ramp_nodes: int = 12,
+    lateral_jitter: float = 0.3,
+    *,
+    noise: NoiseParams = NoiseParams(),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A car driving laps of a rectangular parking deck, floor after floor, up a ramp between floors.
+
+    The path runs along the deck's ``length × width`` rectangle at a constant step
+    (``perimeter / nodes_per_lap``), ``laps_per_floor`` times per floor, each lap shifted sideways
+    by a random offset (uniform in ±``lateral_jitter``); between floors it climbs
+    ``floor_height`` over ``ramp_nodes`` steps while following the same rectangle. The pose faces
+    along the path and pitches with the ramp. Loop closures tie each node of a lap to the nodes
+    ``−1, 0, +1`` steps along the previous lap on the same floor (less the pair at the lap seam,
+    which is odometry) — a long, thin graph with few
+    loop closures per pose, like ``parking-garage``. A long corridor is the same with a large
+    ``length / width``.
+    """
+    F = _check_count("floors", floors, 1)
+    laps = _check_count("laps_per_floor", laps_per_floor, 1)
+    N = _check_count("nodes_per_lap", nodes_per_lap, 4)
+    ramp = _check_count("ramp_nodes", ramp_nodes, 1) if F > 1 else 0
+    if not (length > 0 and width > 0):
+        raise ValueError("length and width must be positive")
+    perimeter = 2.0 * (length + width)
+    step = perimeter / N
+
+    rng = np.random.default_rng(seed)
+    # Segments in path order: each floor's laps, then (but for the last floor) its ramp.
+    arc, height, offset, lap_id = [], [], [], []
+    s0 = 0.0
+    for f in range(F):
+        for lap in range(laps):
+            arc.append(s0 + step * np.arange(N))
+            height.append(np.full(N, f * floor_height))
+            offset.append(np.full(N, rng.uniform(-lateral_jitter, lateral_jitter)))
+            lap_id.append(np.full(N, f * laps + lap))
+        if f < F - 1:
+            arc.append(s0 + step * np.arange(ramp))
+            height.append(f * floor_height + floor_height * np.arange(ramp) / ramp)
+            offset.append(np.zeros(ramp))
+            lap_id.append(np.full(ramp, -1))
+            s0 += step * ramp  # the next floor's laps start where the ramp ends
+    s = np.concatenate(arc) % perimeter
+    z = np.concatenate(height)
+    lateral = np.concatenate(offset)
+    lap_of = np.concatenate(lap_id)
+
+    # Point and heading on the rectangle (0,0) → (length,0) → (length,width) → (0,width) → (0,0).
+    corners = np.array([[0.0, 0.0], [length, 0.0], [length, width], [0.0, width]])
+    directions = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    bounds = np.array([0.0, length, length + width, 2 * length + width])
+    side = np.searchsorted(bounds, s, side="right") - 1
+    along = s - bounds[side]
+    xy = corners[side] + along[:, None] * directions[side]
+    inward = np.stack([-directions[side, 1], directions[side, 0]], axis=1)  # left of travel = inside
+    xy = xy + lateral[:, None] * inward
+    position = np.concatenate([xy, z[:, None]], axis=1)
+    climb = np.where(lap_of < 0, floor_height / max(ramp, 1), 0.0)
+    forward = np.concatenate([directions[side] * step, climb[:, None]], axis=1)
+    truth = se3.from_rotation_translation(_frames_from_axes(forward, np.tile([0.0, 0.0, 1.0], (len(s), 1))), position)
+
+    # Loop closures: lap l of a floor against lap l-1 of the same floor, offsets -1, 0, +1 (mod N).
+    start_of_lap = np.flatnonzero(np.r_[True, lap_of[1:] != lap_of[:-1]])
+    lap_starts = {int(lap_of[i]): int(i) for i in start_of_lap if lap_of[i] >= 0}
+    older = [lap_starts[f * laps + lap - 1] for f in range(F) for lap in range(1, laps)]
+    newer = [lap_starts[f * laps + lap] for f in range(F) for lap in range(1, laps)]
+    candidates = _ring_neighbours(np.array(older, np.int64), np.array(newer, np.int64), N)
+    params = dict(
+        shape="garage",
+        floors=F,
+        laps_per_floor=laps,
+        nodes_per_lap=N,
+        length=length,
+        width=width,
+        floor_height=floor_height,
+        ramp_nodes=ramp,
+        lateral_jitter=lateral_jitter,
+        noise=noise,
+        seed=seed,
+    )
+    return _build(f"garage_{F}x{laps}x{N}", truth, candidates, noise, rng, params)
+
+
+SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage}
+
+
+def shape_arguments(shape: str, size: int) -> dict:
+    """Shape parameters for about ``size`` poses (the exact count is in the result)."""
+    size = _check_count("size", size, 8)
+    if shape == "sphere":
+        side = max(3, round(size**0.5))
+        return dict(rings=side, nodes_per_ring=side)
+    if shape == "torus":
+        rings = max(2, round((size / 2.5) ** 0.5))  # laps : nodes per lap = 1 : 2.5 as the defaults
+        return dict(rings=rings, nodes_per_ring=max(3, round(size / rings)))
+    if shape == "grid":
+        side = max(2, round(size ** (1 / 3)))
+        return dict(nx=side, ny=side, nz=max(1, round(size / side**2)))
+    if shape == "garage":
+        floors, laps, ramp = 4, 2, 12
+        return dict(floors=floors, laps_per_floor=laps, ramp_nodes=ramp, nodes_per_lap=max(4, round((size - (floors - 1) * ramp) / (floors * laps))))
+    raise ValueError(f"unknown shape {shape!r}; one of {sorted(SHAPES)}")
+
+
+def generate(shape: str, size: int | None = None, *, noise: NoiseParams = NoiseParams(), seed: int = 0, **shape_kwargs) -> SyntheticDataset:
+    """One of :data:`SHAPES` by name; ``size`` (about that many poses) sets its shape parameters,
+    which ``shape_kwargs`` may override."""
+    if shape not in SHAPES:
+        raise ValueError(f"unknown shape {shape!r}; one of {sorted(SHAPES)}")
+    arguments = shape_arguments(shape, size) if size is not None else {}
+    arguments.update(shape_kwargs)
+    return SHAPES[shape](**arguments, noise=noise, seed=seed)
+
+
+# --------------------------------------------------------------------------------------------
+# Files
+
+
+def groundtruth_path(path: str | Path) -> Path:
+    """``dir/name.g2o`` → ``dir/name_groundtruth.g2o`` (the naming of gtsam's example data)."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}_groundtruth{path.suffix or '.g2o'}")
+
+
+def write_dataset(path: str | Path, dataset: SyntheticDataset, groundtruth: str | Path | None = None) -> tuple[Path, Path]:
+    """Write the noisy graph to ``path`` and the same graph with its vertices at the ground truth
+    to ``groundtruth`` (default :func:`groundtruth_path`). Returns both paths."""
+    from posegraph.atomic import StagedOutputs
+    from posegraph.errors import OutputError
+    from posegraph.io.g2o import write_g2o
+
+    path = Path(path)
+    truth_path = Path(groundtruth) if groundtruth is not None else groundtruth_path(path)
+    if path.resolve() == truth_path.resolve():
+        raise OutputError("the ground truth would overwrite the graph: give another --groundtruth", str(path))
+    for target in (path, truth_path):
+        if not target.resolve().parent.is_dir():
+            raise OutputError(f"the output folder {target.resolve().parent} does not exist", str(target))
+    # Both files appear together or not at all.
+    with StagedOutputs() as outputs:
+        write_g2o(outputs.stage(path), dataset.graph)
+        write_g2o(outputs.stage(truth_path), dataset.graph, dataset.ground_truth)
+        outputs.commit()
+    return path, truth_path
+
+
+# --------------------------------------------------------------------------------------------
+# Command line
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m datasets.synthetic",
+        description="Write a synthetic 3D pose graph (g2o) and its ground truth (NAME_groundtruth.g2o).",
+    )
+    parser.add_argument("shape", choices=sorted(SHAPES), help="sphere (as g2o's create_sphere), torus, grid (3D lattice), garage (multi-floor laps)")
+    parser.add_argument("--size", type=int, default=None, help="about this many poses (default: the shape's defaults, e.g. sphere 50×50)")
+    parser.add_argument("-o", "--output", required=True, help="output g2o file; the ground truth goes next to it")
+    parser.add_argument("--groundtruth", default=None, help="ground-truth file (default: OUTPUT with _groundtruth before the suffix)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    default = NoiseParams()
+    parser.add_argument(
+        "--odometry-noise", nargs=2, type=float, metavar=("ROT", "TRANS"),
+        default=(default.odometry_rotation_sigma, default.odometry_translation_sigma),
+        help="odometry σ: rotation (rad), translation (m) (default %(default)s)",
+    )
+    parser.add_argument(
+        "--loop-noise", nargs=2, type=float, metavar=("ROT", "TRANS"),
+        default=(default.loop_rotation_sigma, default.loop_translation_sigma),
+        help="loop-closure σ: rotation (rad), translation (m) (default %(default)s)",
+    )
+    parser.add_argument("--loop-density", type=float, default=1.0, help="fraction of candidate loop closures kept (default 1)")
+    parser.add_argument("--outliers", type=float, default=0.0, help="fraction of loop closures that are outliers (default 0)")
+    parser.add_argument("--noiseless", action="store_true", help="exact measurements (the ground truth is then the optimum)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        noise = NoiseParams(
+            odometry_rotation_sigma=args.odometry_noise[0],
+            odometry_translation_sigma=args.odometry_noise[1],
+            loop_rotation_sigma=args.loop_noise[0],
+            loop_translation_sigma=args.loop_noise[1],
+            loop_closure_density=args.loop_density,
+            outlier_fraction=args.outliers,
+            noiseless=args.noiseless,
+        )
+        dataset = generate(args.shape, args.size, noise=noise, seed=args.seed)
+    except ValueError as error:
+        parser.error(str(error))
+    from posegraph.errors import InputError
+
+    try:
+        path, truth_path = write_dataset(args.output, dataset, args.groundtruth)
+    except (InputError, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    graph = dataset.graph
+    print(
+        f"{dataset.name}: {graph.num_vertices} poses, {graph.num_edges} edges "
+        f"({dataset.num_loop_closures} loop closures, {int(dataset.outliers.sum())} outliers) -> {path}, {truth_path}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,127 @@
+"""Write an output file all at once or not at all.
+
+Every output (reports, figures, exports) is first written to a temporary file in the destination's
+folder and moved onto the destination with :func:`os.replace`, which is atomic on POSIX and
+Windows when both paths are on one file system. An exception — ``KeyboardInterrupt`` included —
+before the move deletes the temporary file, so the destination is either the old file or
+the complete new one, never a truncated one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import tempfile
+import threading
+from pathlib import Path
+
+__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "StagedOutputs"]
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffix: str | None = None):
+    """Context manager yielding a temporary path to write; moved onto ``path`` on success.
+
+    ``suffix`` (default: ``path``'s own suffix) is kept on the temporary name, for writers that
+    pick their format from the file name (Open3D, matplotlib). The folder of ``path`` must exist.
+    """
+    path = Path(path)
+    tmp = _temporary_beside(path, suffix)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _temporary_beside(path: Path, suffix: str | None) -> str:
+    """Create an empty temporary file next to ``path`` and return its name."""
+    folder = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=folder
+    )
+    os.close(fd)
+    # mkstemp makes the file private (0600); give it the mode a plain open() would.
+    os.chmod(tmp, 0o666 & ~_umask())
+    return tmp
+
+
+class StagedOutputs:
+    """Several output files that appear together, or not at all.
+
+    ``stage(path)`` returns a temporary file name next to ``path`` for a writer to fill;
+    ``commit()`` moves every staged file onto its destination, with Ctrl-C held back until the
+    last move is done (a ``KeyboardInterrupt`` is raised after it); leaving the ``with`` block
+    without committing — an error, Ctrl-C — deletes the temporary files and leaves the
+    destinations untouched. A command that writes a result, a report and a figure thus never
+    leaves one of them without the others.
+    """
+
+    def __init__(self) -> None:
+        self._staged: list[tuple[str, Path]] = []
+
+    def __enter__(self) -> "StagedOutputs":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.discard()
+
+    def stage(self, path, suffix: str | None = None) -> str:
+        """A temporary path to write in place of ``path`` (whose folder must exist)."""
+        path = Path(path)
+        tmp = _temporary_beside(path, suffix)
+        self._staged.append((tmp, path))
+        return tmp
+
+    def commit(self) -> None:
+        interrupted = []
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(1)) if in_main else None
+        try:
+            for tmp, path in self._staged:
+                os.replace(tmp, path)
+            self._staged = []
+        finally:
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
+        if interrupted:
+            raise KeyboardInterrupt
+
+    def discard(self) -> None:
+        for tmp, _ in self._staged:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._staged = []
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_text_atomic(path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+
+
+def write_json_atomic(path, data, indent: int = 2) -> None:
+    """Write ``data`` as JSON to ``path`` atomically (NaN and infinities written as ``null``)."""
+    write_text_atomic(path, json.dumps(_finite(data), indent=indent) + "\n")
+
+
+def _finite(value):
+    """Replace non-finite floats by None: strict JSON has no NaN or Infinity."""
+    if isinstance(value, float):
+        return value if value == value and abs(value) != float("inf") else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value

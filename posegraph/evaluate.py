@@ -1,0 +1,352 @@
+"""Trajectory error metrics: absolute trajectory error (ATE) and relative pose error (RPE).
+
+The figures follow the definitions of evo (Grupp, "evo: Python package for the evaluation of
+odometry and SLAM", https://github.com/MichaelGrupp/evo) and of Sturm et al., "A benchmark for
+the evaluation of RGB-D SLAM systems" (IROS 2012):
+
+* **ATE** — the estimated positions ``p_k`` are first aligned to the reference positions ``g_k``
+  by the rigid transform ``(R, t)`` minimising ``Σ_k ‖R p_k + t − g_k‖²`` (Umeyama 1991 /
+  Horn 1987, rotation and translation, no scale). The error of pose ``k`` is
+  ``‖R p_k + t − g_k‖`` (``ate_translation``, in the file's length unit) and the angle of
+  ``G_kᵀ · R · P_k`` (``ate_rotation``, degrees), where ``P_k``, ``G_k`` are the rotations.
+* **RPE** — for consecutive poses ``k, k+1`` (in id order) the relative motions
+  ``A = X_k⁻¹ X_{k+1}`` (estimate) and ``B = Y_k⁻¹ Y_{k+1}`` (reference) are compared through
+  ``E = B⁻¹ A``; the error is ``‖trans(E)‖`` (``rpe_translation``) and the rotation angle of
+  ``E`` in degrees (``rpe_rotation``). RPE needs no alignment: it is invariant to a rigid
+  motion of either trajectory. This is evo's ``evo_rpe --delta 1 --delta_unit f``.
+
+Each error list is summarised as evo does (:class:`ErrorStats`: rmse, mean, median, std, min,
+max, sse; ``std`` is the population standard deviation, as ``numpy.std``).
+
+Poses are matched by vertex id: only ids present in both graphs are compared.
+
+Files: :func:`read_trajectory` reads a g2o file's vertices; a file with edges only, such as gtsam's
+``sphere2500_groundtruth.txt`` (``EDGE3`` lines, no vertices), gives the poses obtained by chaining
+its odometry edges ``i → i+1`` from the identity at the smallest id (read with gtsam).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from posegraph.errors import InputError
+
+__all__ = [
+    "ErrorStats",
+    "TrajectoryErrors",
+    "error_stats",
+    "rotation_angle",
+    "align_rigid",
+    "match_by_id",
+    "absolute_trajectory_error",
+    "relative_pose_error",
+    "evaluate",
+    "read_trajectory",
+    "chain_odometry",
+]
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Summary of a list of non-negative errors, with evo's field names."""
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+    count: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def error_stats(errors: np.ndarray) -> ErrorStats:
+    """Statistics of ``errors`` ``(k,)``: ``rmse = sqrt(mean(e²))``, ``sse = Σ e²``, ``std`` = numpy.std."""
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if e.size == 0:
+        nan = float("nan")
+        return ErrorStats(nan, nan, nan, nan, nan, nan, 0.0, 0)
+    sq = e * e
+    return ErrorStats(
+        rmse=float(np.sqrt(sq.mean())),
+        mean=float(e.mean()),
+        median=float(np.median(e)),
+        std=float(e.std()),
+        min=float(e.min()),
+        max=float(e.max()),
+        sse=float(sq.sum()),
+        count=int(e.size),
+    )
+
+
+def rotation_angle(rotations: np.ndarray) -> np.ndarray:
+    """Rotation angle θ ∈ [0, π] of rotation matrices ``(..., 3, 3)``, in radians.
+
+    ``θ = atan2(‖vee(R − Rᵀ)‖ / 2, (tr R − 1) / 2)``: sin θ and cos θ are both read off R, so
+    the angle is accurate near 0 (where ``arccos`` of the trace loses half the digits) and
+    near π (where ``arcsin`` would).
+    """
+    R = np.asarray(rotations, dtype=np.float64)
+    skew = np.stack(
+        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
+        axis=-1,
+    )
+    sin_theta = 0.5 * np.linalg.norm(skew, axis=-1)
+    cos_theta = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    return np.arctan2(sin_theta, cos_theta)
+
+
+def align_rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform ``(R, t)`` minimising ``Σ_k ‖R·source_k + t − target_k‖²`` (no scale).
+
+    ``source``, ``target``: ``(k, 3)`` points, ``k ≥ 3`` for a unique answer. Umeyama (1991),
+    "Least-squares estimation of transformation parameters between two point patterns",
+    with the scale fixed to 1: with centred points ``s̃, g̃`` and ``Σ = Σ_k g̃_k s̃_kᵀ = U S Vᵀ``,
+    ``R = U diag(1, 1, det(U)·det(V)) Vᵀ`` (the sign keeps R a rotation, never a reflection)
+    and ``t = ḡ − R s̄``. Returns ``R`` ``(3, 3)`` and ``t`` ``(3,)``.
+    """
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    source_mean = source.mean(axis=0)
+    target_mean = target.mean(axis=0)
+    cross = (target - target_mean).T @ (source - source_mean)
+    U, _, Vt = np.linalg.svd(cross)
+    d = np.ones(3)
+    d[2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
+    R = (U * d) @ Vt
+    t = target_mean - R @ source_mean
+    return R, t
+
+
+def match_by_id(
+    estimate_ids: np.ndarray, reference_ids: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ids present in both lists, sorted, with their positions in each.
+
+    Returns ``(ids, estimate_index, reference_index)``, each ``(k,)``.
+    """
+    estimate_ids = np.asarray(estimate_ids, dtype=np.int64)
+    reference_ids = np.asarray(reference_ids, dtype=np.int64)
+    ids, estimate_index, reference_index = np.intersect1d(
+        estimate_ids, reference_ids, assume_unique=True, return_indices=True
+    )
+    return ids, estimate_index, reference_index
+
+
+def absolute_trajectory_error(
+    estimate: np.ndarray, reference: np.ndarray, *, align: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-pose ATE after a rigid alignment of ``estimate`` onto ``reference``.
+
+    ``estimate``, ``reference``: matched poses ``(k, 4, 4)``. Returns ``(translation_errors (k,),
+    rotation_errors_deg (k,), alignment (4, 4))`` where ``alignment`` is the SE(3) matrix
+    ``[R t; 0 1]`` applied to the estimate (identity when ``align`` is False).
+    """
+    estimate = np.asarray(estimate, dtype=np.float64)
+    reference = np.asarray(reference, dtype=np.float64)
+    alignment = np.eye(4)
+    if align:
+        R, t = align_rigid(estimate[:, :3, 3], reference[:, :3, 3])
+        alignment[:3, :3] = R
+        alignment[:3, 3] = t
+    aligned = alignment @ estimate
+    translation = np.linalg.norm(aligned[:, :3, 3] - reference[:, :3, 3], axis=-1)
+    rotation = np.degrees(
+        rotation_angle(np.swapaxes(reference[:, :3, :3], -1, -2) @ aligned[:, :3, :3])
+    )
+    return translation, rotation, alignment
+
+
+def _relative(poses: np.ndarray) -> np.ndarray:
+    """``X_k⁻¹ X_{k+1}`` for consecutive poses ``(k, 4, 4)`` → ``(k−1, 4, 4)``."""
+    R = poses[:-1, :3, :3]
+    Rt = np.swapaxes(R, -1, -2)
+    out = np.zeros((len(poses) - 1, 4, 4))
+    out[:, :3, :3] = Rt @ poses[1:, :3, :3]
+    out[:, :3, 3] = np.einsum("kij,kj->ki", Rt, poses[1:, :3, 3] - poses[:-1, :3, 3])
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def relative_pose_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step RPE between consecutive matched poses (delta = 1 pose).
+
+    ``estimate``, ``reference``: ``(k, 4, 4)`` in the order to walk (id order). Returns
+    ``(translation_errors (k−1,), rotation_errors_deg (k−1,))`` of ``E = B⁻¹ A`` with
+    ``A = X_k⁻¹ X_{k+1}``, ``B = Y_k⁻¹ Y_{k+1}``.
+    """
+    A = _relative(np.asarray(estimate, dtype=np.float64))
+    B = _relative(np.asarray(reference, dtype=np.float64))
+    Bt = np.swapaxes(B[:, :3, :3], -1, -2)
+    E_rotation = Bt @ A[:, :3, :3]
+    E_translation = np.einsum("kij,kj->ki", Bt, A[:, :3, 3] - B[:, :3, 3])
+    return np.linalg.norm(E_translation, axis=-1), np.degrees(rotation_angle(E_rotation))
+
+
+@dataclass(frozen=True)
+class TrajectoryErrors:
+    """Result of :func:`evaluate`. Lengths are in the files' unit, angles in degrees."""
+
+    num_matched: int
+    """Poses compared (ids present in both graphs)."""
+    num_estimate: int
+    num_reference: int
+    ate_translation: ErrorStats
+    ate_rotation: ErrorStats
+    rpe_translation: ErrorStats
+    rpe_rotation: ErrorStats
+    alignment: np.ndarray
+    """``(4, 4)`` SE(3) transform applied to the estimate before computing ATE."""
+
+    def as_dict(self) -> dict:
+        return {
+            "num_matched": self.num_matched,
+            "num_estimate": self.num_estimate,
+            "num_reference": self.num_reference,
+            "ate_translation": self.ate_translation.as_dict(),
+            "ate_rotation_deg": self.ate_rotation.as_dict(),
+            "rpe_translation": self.rpe_translation.as_dict(),
+            "rpe_rotation_deg": self.rpe_rotation.as_dict(),
+            "alignment": self.alignment.tolist(),
+        }
+
+
+def evaluate(
+    estimate_ids: np.ndarray,
+    estimate_poses: np.ndarray,
+    reference_ids: np.ndarray,
+    reference_poses: np.ndarray,
+    *,
+    align: bool = True,
+    source: str | None = None,
+) -> TrajectoryErrors:
+    """ATE and RPE of an estimated trajectory against a reference, matched by vertex id.
+
+    ``*_ids`` ``(n,)`` and ``*_poses`` ``(n, 4, 4)``; poses are compared in increasing id order.
+    Raises :class:`~posegraph.errors.InputError` (naming ``source``) when fewer than 3 ids are
+    shared, since the alignment is then not unique.
+    """
+    ids, ei, ri = match_by_id(estimate_ids, reference_ids)
+    if ids.size < 3:
+        raise InputError(
+            f"only {ids.size} vertex id(s) in common between the estimate and the reference "
+            "(need at least 3 to align the trajectories)",
+            path=source,
+        )
+    estimate = np.asarray(estimate_poses, dtype=np.float64)[ei]
+    reference = np.asarray(reference_poses, dtype=np.float64)[ri]
+    ate_t, ate_r, alignment = absolute_trajectory_error(estimate, reference, align=align)
+    rpe_t, rpe_r = relative_pose_error(estimate, reference)
+    return TrajectoryErrors(
+        num_matched=int(ids.size),
+        num_estimate=int(len(estimate_ids)),
+        num_reference=int(len(reference_ids)),
+        ate_translation=error_stats(ate_t),
+        ate_rotation=error_stats(ate_r),
+        rpe_translation=error_stats(rpe_t),
+        rpe_rotation=error_stats(rpe_r),
+        alignment=alignment,
+    )
+
+
+def chain_odometry(
+    ids_from: np.ndarray, ids_to: np.ndarray, measurements: np.ndarray, source: str | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses from the odometry edges (``|i − j| = 1``) of an edge list, starting at the identity.
+
+    ``ids_from``, ``ids_to`` ``(m,)`` vertex ids and ``measurements`` ``(m, 4, 4)`` with
+    ``Z ≈ X_i⁻¹ X_j``. Returns ``(ids, poses)`` for the ids ``min .. max``: ``X_min = I`` and
+    ``X_{k+1} = X_k Z_{k,k+1}`` (an edge ``k+1 → k`` is used inverted). Raises
+    :class:`~posegraph.errors.InputError` when an id of that range has no odometry edge to its
+    successor.
+    """
+    ids_from = np.asarray(ids_from, dtype=np.int64)
+    ids_to = np.asarray(ids_to, dtype=np.int64)
+    Z = np.asarray(measurements, dtype=np.float64)
+    first = int(min(ids_from.min(), ids_to.min()))
+    last = int(max(ids_from.max(), ids_to.max()))
+    n = last - first + 1
+    steps = np.full((n - 1, 4, 4), np.nan)
+    forward = ids_to == ids_from + 1
+    steps[ids_from[forward] - first] = Z[forward]
+    backward = (ids_from == ids_to + 1) & ~np.isin(ids_to - first, ids_from[forward] - first)
+    if np.any(backward):
+        Zb = Z[backward]
+        inverse = np.zeros_like(Zb)
+        Rt = np.swapaxes(Zb[:, :3, :3], -1, -2)
+        inverse[:, :3, :3] = Rt
+        inverse[:, :3, 3] = -np.einsum("kij,kj->ki", Rt, Zb[:, :3, 3])
+        inverse[:, 3, 3] = 1.0
+        steps[ids_to[backward] - first] = inverse
+    missing = np.flatnonzero(np.isnan(steps[:, 0, 0]))
+    if missing.size:
+        k = first + int(missing[0])
+        raise InputError(f"no odometry edge from vertex {k} to {k + 1}: cannot chain the trajectory", path=source)
+    poses = np.empty((n, 4, 4))
+    poses[0] = np.eye(4)
+    for k in range(n - 1):  # a sequential product: each pose depends on the previous one
+        poses[k + 1] = poses[k] @ steps[k]
+    return np.arange(first, last + 1, dtype=np.int64), poses
+
+
+def _is_gtsam_edge_file(path: str) -> bool:
+    """True for a file with ``EDGE3`` lines and no ``VERTEX`` line (gtsam's edge-only format)."""
+    has_edge3 = False
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            tag = line.lstrip()[:6]
+            if tag.startswith("VERTEX"):
+                return False
+            has_edge3 = has_edge3 or tag.startswith("EDGE3")
+    return has_edge3
+
+
+def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex ids ``(n,)`` and poses ``(n, 4, 4)`` of a trajectory file.
+
+    A g2o file is read with :func:`posegraph.io.g2o.read_g2o`. A file without any ``VERTEX`` line
+    that the g2o reader refuses — gtsam's own format with ``EDGE3 i j x y z roll pitch yaw`` lines,
+    as in ``sphere2500_groundtruth.txt`` — is read with ``gtsam.readG2o`` (gtsam's reader, so its
+    angle convention is gtsam's) and its poses are :func:`chain_odometry` of its edges.
+    """
+    import os
+
+    from posegraph.errors import GraphError
+    from posegraph.io.g2o import read_g2o
+
+    name = os.fspath(path)
+    try:
+        graph = read_g2o(name)
+    except GraphError as err:
+        if not _is_gtsam_edge_file(name):
+            raise
+        refused = err
+    else:
+        return graph.ids, graph.poses
+
+    from posegraph.gtsam_bridge import require_gtsam
+
+    try:
+        gtsam = require_gtsam()
+    except ImportError as exc:
+        raise ImportError(f"{name} has edges but no vertices; reading it as a trajectory {exc}") from exc
+    try:
+        factors, _ = gtsam.readG2o(name, True)
+    except RuntimeError as exc:
+        raise InputError(f"gtsam cannot read the file either ({exc}); the g2o reader said: {refused.reason}", name) from exc
+    ids_from, ids_to, measurements = [], [], []
+    for k in range(factors.size()):
+        factor = factors.at(k)
+        if isinstance(factor, gtsam.BetweenFactorPose3):
+            i, j = factor.keys()
+            ids_from.append(i)
+            ids_to.append(j)
+            measurements.append(factor.measured().matrix())
+    if not ids_from:
+        raise GraphError("the file has neither vertices nor 3D edges: no trajectory to read", name)
+    return chain_odometry(np.array(ids_from), np.array(ids_to), np.array(measurements), source=name)

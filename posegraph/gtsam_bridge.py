@@ -1,0 +1,277 @@
+"""Run gtsam on our graphs: conversions and a timed reference optimisation.
+
+gtsam (``pip install "posegraph[gtsam]"``) is optional and imported only inside these functions.
+It is the reference this project is checked against: the same factors (``BetweenFactorPose3``
+with a full Gaussian noise model from Ω, as ``gtsam.readG2o`` builds them), the same cost
+``½ Σ eᵀ Ω e`` (``NonlinearFactorGraph.error``), the same ``[ω; v]`` tangent order.
+
+Gauge. Our solver holds every ``FIX`` vertex and one anchor per free connected component constant
+and adds nothing to the cost (``posegraph.graph.component_anchors``). gtsam needs the gauge fixed
+too, so :func:`run_gtsam` adds a tight prior (σ = :data:`ANCHOR_SIGMA`) on exactly those vertices
+at their initial poses — the usual way gtsam's own examples optimise a g2o file — and reports
+costs of the edges alone, which is the quantity our solver minimises. For a graph without ``FIX``
+vertices the anchors' priors are satisfied exactly at the optimum, so the costs are comparable
+to the last digit.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "INSTALL_HINT",
+    "ANCHOR_SIGMA",
+    "require_gtsam",
+    "poses_to_values",
+    "values_to_poses",
+    "graph_to_gtsam",
+    "gauge_priors",
+    "GtsamResult",
+    "run_gtsam",
+]
+
+INSTALL_HINT = 'pip install "posegraph[gtsam]" (or pip install gtsam)'
+
+ANCHOR_SIGMA = 1e-6
+"""Standard deviation of the priors fixing the gauge in gtsam. Tight enough that the anchors move by
+~1e-12, loose enough (information 1e12 against edge information ≲ 1e6 in the standard datasets) that
+Cholesky keeps full precision for the other variables."""
+
+
+def require_gtsam():
+    """Import and return ``gtsam``, or raise ImportError with the install command."""
+    try:
+        import gtsam
+    except ImportError as exc:
+        raise ImportError(f"this command needs gtsam, which is not installed; install it: {INSTALL_HINT}") from exc
+    return gtsam
+
+
+def poses_to_values(ids: np.ndarray, poses: np.ndarray):
+    """``gtsam.Values`` holding ``Pose3(poses[k])`` under key ``ids[k]``.
+
+    ``ids`` ``(n,)`` integer vertex ids (used as gtsam keys, as ``readG2o`` does); ``poses`` ``(n, 4, 4)``.
+    """
+    gtsam = require_gtsam()
+    values = gtsam.Values()
+    for key, pose in zip(np.asarray(ids).tolist(), np.asarray(poses, dtype=np.float64)):
+        values.insert(key, gtsam.Pose3(pose))
+    return values
+
+
+def values_to_poses(values, ids: np.ndarray) -> np.ndarray:
+    """Poses ``(n, 4, 4)`` of ``ids`` read from ``gtsam.Values`` (KeyError if a key is absent)."""
+    gtsam = require_gtsam()
+    ids = np.asarray(ids, dtype=np.int64)
+    keys = np.asarray(list(values.keys()), dtype=np.int64)
+    # extractPose3 returns one row per Pose3 in key order: R row-major (9), then t (3).
+    rows = gtsam.utilities.extractPose3(values)
+    order = np.argsort(keys)
+    pos = np.searchsorted(keys, ids, sorter=order)
+    pos = np.clip(pos, 0, len(keys) - 1)
+    found = order[pos]
+    if not np.all(keys[found] == ids):
+        raise KeyError(f"vertex ids not in gtsam values: {ids[keys[found] != ids][:5].tolist()}")
+    rows = rows[found]
+    poses = np.zeros((len(ids), 4, 4))
+    poses[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
+    poses[:, :3, 3] = rows[:, 9:12]
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def graph_to_gtsam(graph):
+    """``gtsam.NonlinearFactorGraph`` of ``BetweenFactorPose3``, one per edge, keys = vertex ids.
+
+    Each factor measures ``Pose3(Z_ij)`` with ``noiseModel.Gaussian.Information(Ω)`` (Ω is in
+    ``[ω; v]`` order, gtsam's tangent order), so ``factor_graph.error(values)`` equals our
+    ``cost(graph, poses)``. No prior is added (see :func:`gauge_priors`).
+    """
+    gtsam = require_gtsam()
+    factors = gtsam.NonlinearFactorGraph()
+    ids = graph.ids.tolist()
+    for i, j, Z, info in zip(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements, graph.information):
+        noise = gtsam.noiseModel.Gaussian.Information(info)
+        factors.add(gtsam.BetweenFactorPose3(ids[i], ids[j], gtsam.Pose3(Z), noise))
+    return factors
+
+
+def gauge_priors(graph, poses: np.ndarray | None = None):
+    """Tight ``PriorFactorPose3`` on every ``FIX`` vertex and every component anchor, at ``poses``."""
+    gtsam = require_gtsam()
+    from posegraph.graph import component_anchors
+
+    X = graph.poses if poses is None else poses
+    held = np.union1d(np.flatnonzero(graph.fixed), component_anchors(graph))
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)
+    priors = gtsam.NonlinearFactorGraph()
+    for k in held.tolist():
+        priors.add(gtsam.PriorFactorPose3(int(graph.ids[k]), gtsam.Pose3(X[k]), noise))
+    return priors
+
+
+@dataclass
+class GtsamResult:
+    """Outcome of :func:`run_gtsam`; costs are of the edges alone (no gauge priors)."""
+
+    poses: np.ndarray
+    """``(n, 4, 4)`` optimised poses in the graph's vertex order."""
+    initial_poses: np.ndarray
+    """``(n, 4, 4)`` the poses the optimiser started from."""
+    initial_cost: float
+    final_cost: float
+    iterations: int
+    converged: bool
+    """True when gtsam stopped before ``max_iterations`` (its convergence test fired)."""
+    method: str
+    init: str
+    costs: list = field(default_factory=list)
+    """Cost after each iteration, from gtsam's ``iterationHook`` (this one includes the gauge priors'
+    error, which stays below ~1e-12 for a graph without ``FIX`` vertices)."""
+    seconds_iterations: list = field(default_factory=list)
+    """Wall-clock seconds of each iteration."""
+    seconds_read: float = 0.0
+    """``gtsam.readG2o`` of the file, or building the factor graph from our arrays."""
+    seconds_initialise: float = 0.0
+    """``InitializePose3.initialize`` (chordal) or copying the start poses into ``Values``."""
+    seconds_optimise: float = 0.0
+    seconds_write: float = 0.0
+    """``gtsam.writeG2o`` when an output path was given."""
+    version: str = ""
+
+    @property
+    def seconds_total(self) -> float:
+        return self.seconds_read + self.seconds_initialise + self.seconds_optimise + self.seconds_write
+
+
+def run_gtsam(
+    source,
+    *,
+    graph=None,
+    init: str = "chordal",
+    initial: np.ndarray | None = None,
+    method: str = "lm",
+    max_iterations: int = 100,
+    relative_tolerance: float = 1e-5,
+    absolute_tolerance: float = 1e-5,
+    output: str | None = None,
+) -> GtsamResult:
+    """Optimise a pose graph with gtsam's LM or GN, timing each phase.
+
+    ``source``: a g2o path (read with ``gtsam.readG2o(path, is3D=True)``) or a
+    :class:`~posegraph.graph.PoseGraph` (converted with :func:`graph_to_gtsam`). ``graph``: our
+    model of the same file, used for vertex order, ``FIX`` flags and anchors (read with
+    ``posegraph.io.g2o.read_g2o`` when not given and ``source`` is a path).
+
+    ``init``: ``"file"`` (the file's poses), ``"chordal"`` (gtsam's ``InitializePose3.initialize``:
+    chordal relaxation for rotations, then one Gauss-Newton step on full poses) or ``"given"``
+    (``initial`` ``(n, 4, 4)``, e.g. our own initialiser's output, so both optimisers share one start).
+    The tolerances are gtsam's ``relativeErrorTol`` / ``absoluteErrorTol``.
+    """
+    gtsam = require_gtsam()
+    if method not in ("lm", "gn"):
+        raise ValueError(f"method must be 'lm' or 'gn', got {method!r}")
+    if initial is not None:
+        init = "given"
+    if init not in ("file", "chordal", "given"):
+        raise ValueError(f"init must be 'file', 'chordal' or 'given', got {init!r}")
+
+    t0 = time.perf_counter()
+    if isinstance(source, (str, bytes)) or hasattr(source, "__fspath__"):
+        import os
+
+        path = os.fspath(source)
+        factors, file_values = gtsam.readG2o(path, True)
+        seconds_read = time.perf_counter() - t0
+        if graph is None:
+            from posegraph.io.g2o import read_g2o
+
+            graph = read_g2o(path)
+    else:
+        graph = source
+        factors = graph_to_gtsam(graph)
+        file_values = None
+        seconds_read = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if init == "given":
+        start = np.asarray(initial, dtype=np.float64)
+        values = poses_to_values(graph.ids, start)
+        priors = gauge_priors(graph, start)
+    elif init == "file":
+        values = file_values if file_values is not None else poses_to_values(graph.ids, graph.poses)
+        priors = gauge_priors(graph)
+    else:
+        priors = gauge_priors(graph)
+        anchored = gtsam.NonlinearFactorGraph(factors)
+        anchored.push_back(priors)
+        values = gtsam.InitializePose3.initialize(anchored)
+    seconds_initialise = time.perf_counter() - t0
+    initial_poses = values_to_poses(values, graph.ids)
+    initial_cost = float(factors.error(values))
+
+    full = gtsam.NonlinearFactorGraph(factors)
+    full.push_back(priors)
+    costs: list[float] = []
+    stamps: list[float] = []
+
+    def hook(iteration, error_before, error_after):
+        stamps.append(time.perf_counter())
+        costs.append(float(error_after))
+
+    if method == "lm":
+        params = gtsam.LevenbergMarquardtParams()
+    else:
+        params = gtsam.GaussNewtonParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(float(relative_tolerance))
+    params.setAbsoluteErrorTol(float(absolute_tolerance))
+    params.iterationHook = hook
+    t0 = time.perf_counter()
+    if method == "lm":
+        optimizer = gtsam.LevenbergMarquardtOptimizer(full, values, params)
+    else:
+        optimizer = gtsam.GaussNewtonOptimizer(full, values, params)
+    result = optimizer.optimize()
+    seconds_optimise = time.perf_counter() - t0
+    iterations = int(optimizer.iterations())
+    starts = [t0] + stamps[:-1]
+    seconds_iterations = [b - a for a, b in zip(starts, stamps)]
+    poses = values_to_poses(result, graph.ids)
+    final_cost = float(factors.error(result))
+
+    seconds_write = 0.0
+    if output is not None:
+        t0 = time.perf_counter()
+        gtsam.writeG2o(factors, result, str(output))
+        seconds_write = time.perf_counter() - t0
+
+    return GtsamResult(
+        poses=poses,
+        initial_poses=initial_poses,
+        initial_cost=initial_cost,
+        final_cost=final_cost,
+        iterations=iterations,
+        converged=iterations < int(max_iterations),
+        method=method,
+        init=init,
+        costs=costs,
+        seconds_iterations=seconds_iterations,
+        seconds_read=seconds_read,
+        seconds_initialise=seconds_initialise,
+        seconds_optimise=seconds_optimise,
+        seconds_write=seconds_write,
+        version=_version(),
+    )
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("gtsam")
+    except metadata.PackageNotFoundError:  # pragma: no cover - e.g. gtsam built from source
+        return ""

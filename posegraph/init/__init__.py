@@ -1,0 +1,61 @@
+"""Initial poses for the solver: from the file, along a spanning tree, or by chordal relaxation.
+
+Gauss-Newton and Levenberg-Marquardt only find the optimum from a good start. Three starts:
+
+* ``"file"`` — the poses as read (:func:`file_initialization`);
+* ``"odometry"`` — measurements composed along a spanning tree from each component's held vertex
+  (:func:`posegraph.init.odometry.odometry_initialization`);
+* ``"chordal"`` (default) — rotations by the chordal relaxation, then the translations minimising
+  the cost given them (:func:`posegraph.init.chordal.chordal_initialization`).
+
+Every method keeps fixed vertices and each unfixed component's anchor at their file pose
+(:mod:`posegraph.init.gauge`), as the solver does. ``docs/initialisation.md`` explains the weight
+choices and records measured costs and timings against gtsam's ``InitializePose3``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.graph import PoseGraph
+from posegraph.init.chordal import chordal_initialization, chordal_rotations, translations_given_rotations
+from posegraph.init.gauge import held_vertices
+from posegraph.init.odometry import odometry_initialization, spanning_tree
+
+__all__ = [
+    "METHODS",
+    "initialize",
+    "file_initialization",
+    "odometry_initialization",
+    "chordal_initialization",
+    "chordal_rotations",
+    "translations_given_rotations",
+    "spanning_tree",
+    "held_vertices",
+]
+
+METHODS = ("chordal", "odometry", "file")
+
+
+def file_initialization(graph: PoseGraph) -> np.ndarray:
+    """``(n, 4, 4)`` — a copy of the poses as read."""
+    return np.array(graph.poses, dtype=np.float64, copy=True)
+
+
+def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarray:
+    """Initial poses ``(n, 4, 4)`` for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
+
+    ``options`` go to the method's function: ``linear_solver=`` for ``"chordal"``, ``tree=`` for
+    ``"odometry"``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if graph.num_vertices == 0:
+        return np.zeros((0, 4, 4))
+    if method == "file":
+        if options:
+            raise TypeError(f"method 'file' takes no options, got {sorted(options)}")
+        return file_initialization(graph)
+    if method == "odometry":
+        return odometry_initialization(graph, **options)
+    return chordal_initialization(graph, **options)

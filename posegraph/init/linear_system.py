@@ -1,0 +1,217 @@
+"""The sparse linear least-squares problem both chordal stages solve, and its SPD solve.
+
+Both the chordal rotations and the translations given rotations minimise, over one 3×k block
+``x_k`` per vertex,
+
+    ``Σ_e  ½ tr((x_j − P_e x_i − h_e)ᵀ W_e (x_j − P_e x_i − h_e))``,
+
+with a 3×3 transfer ``P_e``, a 3×3 symmetric positive-definite weight ``W_e`` and an offset
+``h_e`` (given as ``g_e = W_e h_e``, which is what the normal equations need). Held vertices
+(fixed and anchors, :mod:`posegraph.init.gauge`) are *eliminated*, not softly anchored by a
+prior: their blocks move to the right-hand side. Setting the gradient to zero gives, per edge,
+the normal-equation blocks
+
+    ``H_jj += W``,  ``H_ii += Pᵀ W P``,  ``H_ji −= W P``,  ``H_ij −= Pᵀ W``,
+    ``b_j += g``,  ``b_i −= Pᵀ g``,
+
+and a held ``x_i`` (resp. ``x_j``) adds ``W P x_i`` to ``b_j`` (resp. ``Pᵀ W x_j`` to ``b_i``).
+The matrix ``H`` (3p×3p for p free vertices) is the same for all k columns: one factorisation,
+k right-hand sides. It is positive definite whenever every component holds a vertex and every
+``W_e`` is positive definite, which :mod:`posegraph.init.weights` guarantees.
+
+The block sparsity depends only on the edges and the held set, so :class:`RelativeLeastSquares`
+analyses it once — the CSC pattern, where each per-edge block entry lands in it, and CHOLMOD's
+symbolic factorisation — and each :meth:`~RelativeLeastSquares.solve` only refills the values
+(the rotation and translation stages share one analysis).
+
+This module deliberately depends on scipy (and optionally scikit-sparse) only, not on
+:mod:`posegraph.solve`: initialisation comes before the solver in the data flow.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS"]
+
+LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
+
+_AXIS = np.arange(3)
+
+
+class RelativeLeastSquares:
+    """The relative least-squares problem of the module docstring for one edge set and held set.
+
+    Parameters
+    ----------
+    held : (n,) bool — vertices whose block is given, not solved for.
+    edge_from, edge_to : (m,) int — vertex indices ``i``, ``j`` of each edge.
+    linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"``.
+        ``"cholmod"``: scikit-sparse's CHOLMOD (supernodal Cholesky, AMD ordering, symbolic
+        analysis kept between solves); ``"scipy"``: SuperLU in symmetric mode (minimum-degree
+        ordering on AᵀA+A, no off-diagonal pivoting — on an SPD matrix that is Cholesky in
+        disguise), needing nothing beyond scipy; ``"auto"``: CHOLMOD when importable, and SuperLU
+        if it is missing, reports the matrix as not positive definite (it can, at round-off
+        level, when the weights span many decades) or returns non-finite numbers.
+    """
+
+    def __init__(self, held: np.ndarray, edge_from: np.ndarray, edge_to: np.ndarray, *, linear_solver: str = "auto"):
+        if linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
+        self.linear_solver = linear_solver
+        self.held = np.asarray(held, dtype=bool)
+        self.edge_from = np.asarray(edge_from, dtype=np.int64)
+        self.edge_to = np.asarray(edge_to, dtype=np.int64)
+        free = ~self.held
+        self.num_free = int(np.count_nonzero(free))
+        self.variable = np.full(self.held.shape[0], -1, dtype=np.int64)
+        self.variable[free] = np.arange(self.num_free)
+        i, j = self.edge_from, self.edge_to
+        self.free_from, self.free_to = free[i], free[j]
+        self.both_free = self.free_from & self.free_to
+        self._symbolic = None  # CHOLMOD analysis, made at the first factorisation
+        self._analyse_pattern()
+
+    def _analyse_pattern(self) -> None:
+        """CSC pattern of H and the CSC position of every per-edge block entry (see :meth:`_matrix`).
+
+        Works on 3×3 blocks (one sort of the block pairs, not of 9× as many entries): with the
+        stored blocks sorted by (block column c, block row r), scalar column ``3c + b`` holds the
+        column's ``count_c`` blocks one after another, so entry ``(a, b)`` of the ``s``-th block of
+        block column ``c`` sits at ``9·(blocks before column c) + 3·count_c·b + 3·s + a``.
+        """
+        i, j, var = self.edge_from, self.edge_to, self.variable
+        block_rows = np.concatenate(
+            [var[j[self.free_to]], var[i[self.free_from]], var[j[self.both_free]], var[i[self.both_free]]]
+        )
+        block_cols = np.concatenate(
+            [var[j[self.free_to]], var[i[self.free_from]], var[i[self.both_free]], var[j[self.both_free]]]
+        )
+        p = self.num_free
+        keys, block_of = np.unique(block_cols * np.int64(p) + block_rows, return_inverse=True)
+        rows, cols = keys % max(p, 1), keys // max(p, 1)
+        count = np.bincount(cols, minlength=p)
+        blocks_before = np.concatenate([[0], np.cumsum(count)])
+        rank = np.arange(keys.size) - blocks_before[cols]  # s: rank of the block within its column
+        # positions (block, a, b) for every stored block
+        base = 9 * blocks_before[cols] + 3 * rank
+        position = base[:, None, None] + _AXIS[None, :, None] + 3 * count[cols][:, None, None] * _AXIS[None, None, :]
+        self._position = position[block_of].ravel()
+        self._nnz = 9 * keys.size
+        column_counts = np.repeat(3 * count, 3)  # entries in each scalar column
+        self._indptr = np.concatenate([[0], np.cumsum(column_counts)]).astype(np.int32)
+        indices = np.empty(self._nnz, dtype=np.int32)
+        indices[position.ravel()] = (3 * rows[:, None, None] + _AXIS[None, :, None] + 0 * _AXIS[None, None, :]).ravel()
+        self._indices = indices
+
+    def _matrix(self, transfer: np.ndarray, weight_transfer: np.ndarray, weight: np.ndarray) -> sp.csc_matrix:
+        """H with its per-edge blocks ``W``, ``PᵀWP``, ``−WP``, ``−PᵀW`` summed into the fixed pattern."""
+        blocks = [
+            weight[self.free_to],
+            transfer[self.free_from].transpose(0, 2, 1) @ weight_transfer[self.free_from],
+            -weight_transfer[self.both_free],
+            -weight_transfer[self.both_free].transpose(0, 2, 1),
+        ]
+        data = np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
+        size = 3 * self.num_free
+        return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
+
+    def solve(
+        self,
+        held_values: np.ndarray,
+        transfer: np.ndarray,
+        weight: np.ndarray,
+        weighted_offset: np.ndarray | None = None,
+        *,
+        refinement_steps: int = 1,
+    ) -> np.ndarray:
+        """The minimiser ``(n, 3, k)``; held rows equal ``held_values``.
+
+        ``held_values`` ``(n, 3, k)`` (rows of free vertices are ignored), ``transfer`` ``P_e`` and
+        ``weight`` ``W_e`` ``(m, 3, 3)``, ``weighted_offset`` ``g_e = W_e h_e`` ``(m, 3, k)`` or
+        None for zero. ``refinement_steps`` steps of iterative refinement follow the first solve.
+        """
+        values = np.array(held_values, dtype=np.float64, copy=True)
+        k = values.shape[-1]
+        if self.num_free == 0:
+            return values
+        i, j, var = self.edge_from, self.edge_to, self.variable
+        free_i, free_j = self.free_from, self.free_to
+        weight_transfer = weight @ transfer  # W P
+        solve = self._factorize(self._matrix(transfer, weight_transfer, weight))
+
+        shape = (self.num_free, 3, k)
+        rhs = np.zeros(shape)
+        if weighted_offset is not None:
+            np.add.at(rhs, var[j[free_j]], weighted_offset[free_j])
+            np.add.at(rhs, var[i[free_i]], -(transfer[free_i].transpose(0, 2, 1) @ weighted_offset[free_i]))
+        only_j = free_j & ~free_i
+        np.add.at(rhs, var[j[only_j]], weight_transfer[only_j] @ values[i[only_j]])
+        only_i = free_i & ~free_j
+        np.add.at(rhs, var[i[only_i]], weight_transfer[only_i].transpose(0, 2, 1) @ values[j[only_i]])
+
+        free = ~self.held
+        values[free] = solve(rhs.reshape(-1, k)).reshape(shape)
+        for _ in range(refinement_steps):
+            # Iterative refinement from the edges' own residuals rather than b − H x, in which two
+            # large terms nearly cancel: the gradient is evaluated from edge differences
+            # x_j − P x_i, accurate to the round-off of x itself, so one correction removes most
+            # of the first solve's cond(H)·ε error when the weights span many decades.
+            pull = weight @ (values[j] - transfer @ values[i])
+            if weighted_offset is not None:
+                pull = pull - weighted_offset
+            gradient = np.zeros(shape)
+            np.add.at(gradient, var[j[free_j]], pull[free_j])
+            np.add.at(gradient, var[i[free_i]], -(transfer[free_i].transpose(0, 2, 1) @ pull[free_i]))
+            values[free] -= solve(gradient.reshape(-1, k)).reshape(shape)
+        return values
+
+    def _factorize(self, matrix: sp.csc_matrix):
+        """``solve(rhs) -> x`` for ``matrix``, by the backend chosen at construction."""
+        if self.linear_solver in ("auto", "cholmod"):
+            factor = self._cholmod_factor(matrix)
+            if factor is not None:
+                fallback = []
+
+                def solve(rhs: np.ndarray) -> np.ndarray:
+                    if not fallback:
+                        solution = factor(rhs)
+                        if self.linear_solver == "cholmod" or np.all(np.isfinite(solution)):
+                            return solution
+                        fallback.append(_superlu_solver(matrix))
+                    return fallback[0](rhs)
+
+                return solve
+        return _superlu_solver(matrix)
+
+    def _cholmod_factor(self, matrix: sp.csc_matrix):
+        """CHOLMOD's factor of ``matrix`` (callable), or None when unavailable or not positive definite."""
+        required = self.linear_solver == "cholmod"
+        try:
+            from sksparse.cholmod import CholmodError, CholmodTypeConversionWarning, CholmodWarning, analyze
+        except ImportError:
+            if required:
+                raise
+            return None
+        try:
+            with warnings.catch_warnings():
+                # CHOLMOD warns (rather than raises) on some tiny pivots: treat that as a failure.
+                warnings.simplefilter("error", CholmodWarning)
+                warnings.simplefilter("ignore", CholmodTypeConversionWarning)
+                if self._symbolic is None:
+                    self._symbolic = analyze(matrix, ordering_method="amd")
+                return self._symbolic.cholesky(matrix)
+        except (CholmodError, CholmodWarning):
+            if required:
+                raise
+            return None
+
+
+def _superlu_solver(matrix: sp.csc_matrix):
+    from scipy.sparse.linalg import splu
+
+    factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    return lambda rhs: factor.solve(np.asarray(rhs, dtype=np.float64))

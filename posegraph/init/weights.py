@@ -1,0 +1,71 @@
+"""How an edge's 6×6 information Ω (``[ω; v]`` order) weighs the initialisers' linear problems.
+
+Write an edge's residual as ``e = [δ; v] = Log(Z⁻¹ Xi⁻¹ Xj)`` with cost ``½ eᵀ Ω e`` and
+blocks ``Ω = [[Ω_ωω, Ω_ωv], [Ω_vω, Ω_vv]]``.
+
+Rotation weight (chordal relaxation)
+    The chordal term of an edge is ``w ‖R_j − R_i R_z‖_F²``. With
+    ``R_zᵀ R_iᵀ R_j = Exp(δ)`` and ``θ = |δ|`` it equals ``w ‖Exp(δ) − I‖_F² = 8 w sin²(θ/2)
+    ≈ 2 w θ²``: it weighs every rotation axis alike. We take
+
+        ``w = tr(Ω_ωω) / 3``,
+
+    the mean of ``uᵀ Ω_ωω u`` over unit axes ``u`` — the chordal term then equals the true
+    rotational cost averaged over the direction of the error (for ``Ω_ωω = κ I`` exactly, up to the
+    common factor 4, which does not move the minimiser). The trace needs no inverse or
+    factorisation, so it is defined for every information a file can hold, including
+    ill-conditioned or slightly indefinite ones, and an edge whose rotation is known tightly about
+    two axes and loosely about the third keeps a large weight (the smallest eigenvalue or
+    ``3 / tr(Ω_ωω⁻¹)`` would let the one weak axis erase it). ``docs/initialisation.md`` compares
+    the alternatives on the benchmark graphs.
+
+Translation weight
+    Given the rotations, ``δ`` is known and ``v`` is affine in the translations, so the edge cost is
+    an exact quadratic in them: the full 3×3 ``Ω_vv`` (and the coupling ``Ω_vω``) is used as is,
+    see :func:`posegraph.init.chordal.translations_given_rotations`.
+
+Floors
+    Weights are made strictly positive so that every linear system stays definite whatever the
+    file says: rotation weights below ``WEIGHT_FLOOR × max(w)`` are raised to it, and the
+    eigenvalues of each ``Ω_vv`` below ``WEIGHT_FLOOR ×`` the largest eigenvalue of any ``Ω_vv``.
+    Such an edge then barely influences the result, which is what its information says.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["WEIGHT_FLOOR", "rotation_weights", "translation_information"]
+
+WEIGHT_FLOOR = 1e-12
+"""Relative floor of the weights. Legitimate graphs span ~1e-2..1e7 (ratio 1e-9); 1e-12 stays below
+that, and above double precision's 1e-16 so the Cholesky factorisation still sees a positive pivot."""
+
+
+def rotation_weights(information: np.ndarray) -> np.ndarray:
+    """Scalar chordal weights ``w = tr(Ω_ωω)/3``, floored; ``information`` ``(m,6,6)`` → ``(m,)``."""
+    information = np.asarray(information, dtype=np.float64)
+    weights = np.trace(information[:, :3, :3], axis1=1, axis2=2) / 3.0
+    if weights.size == 0:
+        return weights
+    largest = float(weights.max())
+    if not largest > 0.0:
+        # No edge carries rotational information: every edge counts the same.
+        return np.ones_like(weights)
+    return np.maximum(weights, WEIGHT_FLOOR * largest)
+
+
+def translation_information(information: np.ndarray) -> np.ndarray:
+    """The ``(m,3,3)`` translational blocks ``Ω_vv``, symmetrised, eigenvalues floored."""
+    information = np.asarray(information, dtype=np.float64)
+    block = information[:, 3:, 3:]
+    block = 0.5 * (block + block.transpose(0, 2, 1))
+    if block.shape[0] == 0:
+        return block
+    eigenvalues, eigenvectors = np.linalg.eigh(block)
+    largest = float(eigenvalues[:, -1].max())
+    floor = WEIGHT_FLOOR * largest if largest > 0.0 else 1.0
+    if eigenvalues[:, 0].min() >= floor:
+        return block
+    clipped = np.maximum(eigenvalues, floor)
+    return (eigenvectors * clipped[:, None, :]) @ eigenvectors.transpose(0, 2, 1)

@@ -1,0 +1,673 @@
+"""Read and write 3D pose graphs in g2o's text format.
+
+Format
+------
+One record per line; fields are separated by spaces or tabs (any number);
+``#`` starts a comment that runs to the end of the line; blank lines and CRLF
+line ends are fine. The records read are::
+
+    VERTEX_SE3:QUAT id x y z qx qy qz qw
+    EDGE_SE3:QUAT   i j x y z qx qy qz qw  I11 I12 I13 I14 I15 I16 I22 ... I66
+    FIX id [id ...]
+
+* The quaternion is in g2o's order ``qx qy qz qw`` (scalar last).
+* The 21 ``Irc`` are the upper triangle of the 6×6 information matrix, row by
+  row, in g2o's order ``[x y z | rotation]``: translation first. The model
+  (:class:`posegraph.graph.PoseGraph`) stores it permuted to the tangent order
+  ``[ω; v]`` (rotation first), exactly as ``gtsam.readG2o`` does::
+
+      Ω = [[I_RR, I_Rt],      where the file holds  [[I_tt, I_tR],
+           [I_tR, I_tt]]                              [I_Rt, I_RR]]
+
+  so that ½ Σ eᵀ Ω e with ``e = Log(Z⁻¹ Xi⁻¹ Xj)`` equals gtsam's
+  ``NonlinearFactorGraph.error`` for the graph ``gtsam.readG2o`` builds.
+* Edges name vertices by id; the model refers to them by index into ``ids``.
+
+Tags this module does not read (other vertex and edge types, ``PARAMS_*``…)
+are skipped with one :class:`~posegraph.errors.InputWarning` that counts them
+per tag. 2D graphs (``VERTEX_SE2``/``EDGE_SE2``) are refused with a clear
+message: they are not supported yet.
+
+Checks
+------
+Every problem raises an :class:`~posegraph.errors.InputError` subclass whose
+message is ``file:line: reason``. The first problem in the file is reported,
+in this order of stages: the format of each line (:class:`G2oFormatError`:
+2D tags, field count, a field that is not a number or an id that is not an
+integer, a negative vertex id), the values (:class:`G2oFormatError`: NaN or
+infinite numbers, a zero-norm quaternion, an information matrix that is zero
+or not positive semi-definite), an empty graph (:class:`GraphError`, no line:
+no vertices, or no edges unless ``require_edges=False``), then the graph
+(:class:`GraphError`: duplicate vertex id, an edge or ``FIX`` naming a missing
+vertex, a self-loop).
+
+Repairs, each reported once by an :class:`~posegraph.errors.InputWarning`:
+
+* Every quaternion is normalised (as gtsam does); those whose norm is off by
+  more than :data:`QUATERNION_NORM_TOLERANCE` are counted in a warning that
+  names the first line.
+* Information policy: a matrix is rejected when its smallest eigenvalue is
+  below ``−PSD_TOLERANCE · max|λ|`` (a sign error, not rounding: values written
+  with 6 significant digits move the eigenvalues of a singular matrix by at
+  most ~3e-6·max|λ|) or when it is all zero (the edge would constrain nothing
+  yet still connect its vertices, hiding a gauge freedom from the solver). A
+  singular but non-zero positive semi-definite matrix (e.g. a constraint on
+  the translation only) is accepted and stored exactly, with a warning: gtsam's
+  ``noiseModel.Gaussian.Information`` does not represent such matrices
+  exactly, so costs can differ from gtsam's on those edges.
+* A graph with several connected components is accepted with a warning; the
+  solver anchors each component separately (see
+  :func:`posegraph.graph.component_anchors`).
+
+Writing
+-------
+:func:`write_g2o` writes vertices (in the graph's order, with their ids),
+one ``FIX id`` line per fixed vertex, then edges, with every float in its
+shortest exact decimal form (``repr``), so read → write → read reproduces
+translations and information exactly and rotation matrices to rounding
+(a few 1e-16: the quaternion is recomputed from the matrix).
+It writes a temporary file in the target folder and renames it over the
+target, so no partial file is ever left, and it refuses to replace the file
+the graph was read from unless ``overwrite_input=True``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+
+from posegraph.atomic import atomic_path
+from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, OutputError
+from posegraph.graph import PoseGraph, connected_components
+from posegraph.lie import so3
+
+__all__ = [
+    "read_g2o",
+    "write_g2o",
+    "format_g2o",
+    "VERTEX_TAG",
+    "EDGE_TAG",
+    "FIX_TAG",
+    "G2O_TO_TANGENT",
+    "QUATERNION_NORM_TOLERANCE",
+    "ZERO_QUATERNION_NORM",
+    "PSD_TOLERANCE",
+    "SINGULAR_TOLERANCE",
+]
+
+VERTEX_TAG = "VERTEX_SE3:QUAT"
+EDGE_TAG = "EDGE_SE3:QUAT"
+FIX_TAG = "FIX"
+# 2D tags of g2o and of the older TORO/gtsam formats: refused, not skipped,
+# because skipping them would silently leave an empty or partial graph.
+TWO_D_TAGS = frozenset({"VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2"})
+
+QUATERNION_NORM_TOLERANCE = 1e-6
+"""A quaternion whose norm differs from 1 by more than this is reported when normalised."""
+ZERO_QUATERNION_NORM = 1e-12
+"""A quaternion with a norm at or below this has no direction: rejected."""
+PSD_TOLERANCE = 1e-5
+"""Information with an eigenvalue below ``−PSD_TOLERANCE · max|λ|`` is not PSD: rejected."""
+SINGULAR_TOLERANCE = 1e-12
+"""Information with ``λ_min ≤ SINGULAR_TOLERANCE · max|λ|`` is singular: accepted with a warning."""
+
+G2O_TO_TANGENT = np.array([3, 4, 5, 0, 1, 2])
+"""Index permutation from g2o's ``[t; R]`` order to ``[ω; v]`` (its own inverse)."""
+
+_UPPER_ROWS, _UPPER_COLS = np.triu_indices(6)
+
+
+def _tangent_from_upper() -> np.ndarray:
+    """``(36,)`` indices into g2o's 21 upper-triangular entries giving Ω in ``[ω; v]`` order, row-major."""
+    entry = np.empty((6, 6), dtype=np.int64)
+    entry[_UPPER_ROWS, _UPPER_COLS] = np.arange(21)
+    entry[_UPPER_COLS, _UPPER_ROWS] = np.arange(21)
+    return entry[G2O_TO_TANGENT][:, G2O_TO_TANGENT].reshape(-1)
+
+
+_TANGENT_FROM_UPPER = _tangent_from_upper()
+_VERTEX_FIELDS = ("id", "x", "y", "z", "qx", "qy", "qz", "qw")
+_EDGE_FIELDS = ("id_from", "id_to", "x", "y", "z", "qx", "qy", "qz", "qw") + tuple(
+    f"information({r + 1},{c + 1})" for r, c in zip(_UPPER_ROWS, _UPPER_COLS)
+)
+_VERTEX_DTYPE = np.dtype([("id", np.int64), ("t", np.float64, (3,)), ("q", np.float64, (4,))])
+_EDGE_DTYPE = np.dtype(
+    [("ids", np.int64, (2,)), ("t", np.float64, (3,)), ("q", np.float64, (4,)), ("info", np.float64, (21,))]
+)
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+
+
+class _Lines(NamedTuple):
+    """The lines of one tag: 1-based line numbers and the text after the tag."""
+
+    numbers: np.ndarray
+    rests: list[str]
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def read_g2o(path: str | os.PathLike, *, require_edges: bool = True) -> PoseGraph:
+    """Read a 3D pose graph from a g2o file.
+
+    Parameters
+    ----------
+    path:
+        The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
+        lines; see the module docstring for the format and the checks).
+    require_edges:
+        If False, a file with vertices but no edges (a trajectory) is
+        accepted and gives a graph with ``m = 0``; by default it is an error,
+        as there is nothing to optimise.
+
+    Returns
+    -------
+    PoseGraph
+        ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
+        (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information
+        (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
+        ``gtsam.readG2o`` does), ``fixed (n,)`` and ``source`` (the absolute
+        path read).
+
+    Raises
+    ------
+    G2oFormatError
+        A malformed line or an invalid number (see the module docstring).
+    GraphError
+        No vertices, no edges (unless ``require_edges=False``), a duplicate
+        vertex id, an edge or ``FIX`` naming a missing vertex, or a self-loop.
+    InputError
+        The file cannot be opened.
+
+    Warns
+    -----
+    InputWarning
+        Skipped tags, normalised quaternions, singular information matrices,
+        several connected components (one warning each, after all checks pass).
+    """
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as handle:
+            data = handle.read()
+    except OSError as err:
+        raise InputError(f"cannot read the file: {err.strerror or err}", name) from err
+    # utf-8-sig drops a byte-order mark, which would otherwise glue itself to the first tag.
+    text = data.decode("utf-8-sig", errors="replace")
+    return _parse(text, name, source=os.path.abspath(name), require_edges=require_edges)
+
+
+def _parse(text: str, path: str, source: str | None, require_edges: bool) -> PoseGraph:
+    groups, first_line = _group_lines(text)
+    empty = _Lines(np.zeros(0, dtype=np.int64), [])
+    vertex_lines = groups.get(VERTEX_TAG, empty)
+    edge_lines = groups.get(EDGE_TAG, empty)
+    skipped = {tag: len(lines.rests) for tag, lines in groups.items() if tag not in (VERTEX_TAG, EDGE_TAG, FIX_TAG)}
+    notes: list[str] = []
+
+    # Stage 1: the format of each line.
+    _refuse_two_d(groups, first_line, path)
+    vertices, vertex_error = _parse_records(vertex_lines, VERTEX_TAG, _VERTEX_DTYPE, _VERTEX_FIELDS, 1, path)
+    edges, edge_error = _parse_records(edge_lines, EDGE_TAG, _EDGE_DTYPE, _EDGE_FIELDS, 2, path)
+    fix_ids, fix_numbers, fix_error = _parse_fix(groups.get(FIX_TAG, empty), path)
+    negative_error = None if vertex_error else _check_negative_ids(vertices["id"], vertex_lines.numbers, path)
+    _raise_first([vertex_error, edge_error, fix_error, negative_error])
+    if skipped:
+        listing = ", ".join(f"{tag} ×{count}" for tag, count in sorted(skipped.items()))
+        first = min(first_line[tag] for tag in skipped)
+        count = sum(skipped.values())
+        notes.append(f"{path}:{first}: skipped {count} line(s) with tags posegraph does not read: {listing}")
+
+    # Stage 2: the values.
+    vertex_q, vertex_zero = _unit_quaternions(vertices["q"], vertex_lines.numbers, VERTEX_TAG, path)
+    edge_q, edge_zero = _unit_quaternions(edges["q"], edge_lines.numbers, EDGE_TAG, path)
+    information, info_error, singular_note = _information(edges["info"], edge_lines.numbers, path)
+    vertex_finite = _check_finite(vertices, vertex_lines.numbers, VERTEX_TAG, _VERTEX_FIELDS, path)
+    edge_finite = _check_finite(edges, edge_lines.numbers, EDGE_TAG, _EDGE_FIELDS, path)
+    _raise_first([vertex_finite, edge_finite, vertex_zero, edge_zero, info_error])
+    notes += _quaternion_note([vertices["q"], edges["q"]], [vertex_lines.numbers, edge_lines.numbers], path)
+    notes += [singular_note] if singular_note else []
+
+    # Stage 3: an empty graph.
+    if len(vertices) == 0:
+        also = f" (the file has only: {', '.join(sorted(skipped))})" if skipped else ""
+        raise GraphError(f"the file has no {VERTEX_TAG} lines: there is no 3D pose graph to read{also}", path)
+    if len(edges) == 0 and require_edges:
+        raise GraphError(f"the file has no {EDGE_TAG} lines: there is nothing to optimise", path)
+
+    # Stage 4: the graph.
+    ids = vertices["id"]
+    edge_index, fixed = _topology(
+        ids, vertex_lines.numbers, edges["ids"], edge_lines.numbers, fix_ids, fix_numbers, path
+    )
+
+    graph = PoseGraph(
+        ids=ids.copy(),
+        poses=_matrices(so3.from_quaternion(vertex_q), vertices["t"]),
+        edge_from=edge_index[:, 0].copy(),
+        edge_to=edge_index[:, 1].copy(),
+        measurements=_matrices(so3.from_quaternion(edge_q), edges["t"]),
+        information=information,
+        fixed=fixed,
+        source=source,
+    )
+    if graph.num_edges:
+        notes += _components_note(graph, path)
+    for note in notes:
+        warnings.warn(note, InputWarning, stacklevel=3)
+    return graph
+
+
+def _refuse_two_d(groups: dict[str, _Lines], first_line: dict[str, int], path: str) -> None:
+    two_d = sorted(TWO_D_TAGS & groups.keys(), key=lambda tag: first_line[tag])
+    if two_d:
+        raise G2oFormatError(
+            f"{two_d[0]}: 2D pose graphs are not supported yet; posegraph reads 3D graphs "
+            f"({VERTEX_TAG} / {EDGE_TAG} / {FIX_TAG})",
+            path,
+            first_line[two_d[0]],
+        )
+
+
+def _topology(
+    ids: np.ndarray,
+    vertex_numbers: np.ndarray,
+    edge_ids: np.ndarray,
+    edge_numbers: np.ndarray,
+    fix_ids: np.ndarray,
+    fix_numbers: np.ndarray,
+    path: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Edge endpoints as vertex indices ``(m, 2)`` and the fixed mask ``(n,)``, after the graph checks."""
+    order = np.argsort(ids, kind="stable")
+    sorted_ids = ids[order]
+    duplicate = _check_duplicates(ids, order, vertex_numbers, path)
+    edge_index, missing = _resolve(edge_ids.reshape(-1), order, sorted_ids, np.repeat(edge_numbers, 2), "edge", path)
+    loops = np.flatnonzero(edge_ids[:, 0] == edge_ids[:, 1])
+    loop = None
+    if loops.size:
+        e = loops[0]
+        loop = GraphError(f"self-loop: the edge joins vertex {edge_ids[e, 0]} to itself", path, int(edge_numbers[e]))
+    fixed_index, fix_missing = _resolve(fix_ids, order, sorted_ids, fix_numbers, FIX_TAG, path)
+    _raise_first([duplicate, missing, loop, fix_missing])
+    fixed = np.zeros(len(ids), dtype=bool)
+    fixed[fixed_index] = True
+    return edge_index.reshape(-1, 2), fixed
+
+
+def _components_note(graph: PoseGraph, path: str) -> list[str]:
+    count, labels = connected_components(graph)
+    if count == 1:
+        return []
+    sizes = np.sort(np.bincount(labels))[::-1]
+    shown = ", ".join(str(size) for size in sizes[:5]) + (", …" if count > 5 else "")
+    return [
+        f"{path}: the graph has {count} connected components (vertex counts {shown}); "
+        "the solver anchors each component separately"
+    ]
+
+
+def _group_lines(text: str) -> tuple[dict[str, _Lines], dict[str, int]]:
+    """Split ``text`` into lines once and group them by tag (comments and blank lines dropped)."""
+    # Split on "\n" only: str.splitlines would also break on \x0b, \x1c… and shift line numbers.
+    # A trailing "\r" (CRLF) is whitespace to str.split and to numpy's parser alike.
+    lines = text.split("\n")
+    if "#" in text:
+        lines = [line.partition("#")[0] for line in lines]
+    numbers: dict[str, list[int]] = {}
+    rests: dict[str, list[str]] = {}
+    for number, line in enumerate(lines, start=1):
+        # Fast path for "TAG fields…"; str.split handles leading blanks, tabs and a bare tag.
+        tag, _, rest = line.partition(" ")
+        if not tag or not tag.isprintable():
+            parts = line.split(None, 1)
+            if not parts:
+                continue
+            tag = parts[0]
+            rest = parts[1] if len(parts) > 1 else ""
+        try:
+            numbers[tag].append(number)
+            rests[tag].append(rest)
+        except KeyError:
+            numbers[tag] = [number]
+            rests[tag] = [rest]
+    groups = {tag: _Lines(np.array(numbers[tag], dtype=np.int64), rests[tag]) for tag in numbers}
+    first_line = {tag: numbers[tag][0] for tag in numbers}
+    return groups, first_line
+
+
+def _parse_records(
+    lines: _Lines, tag: str, dtype: np.dtype, fields: tuple[str, ...], n_ints: int, path: str
+) -> tuple[np.ndarray, G2oFormatError | None]:
+    """Parse all lines of one tag with one call to numpy's C parser.
+
+    Only when that fails (or drops a line) are the lines scanned one by one to
+    name the offending line and field.
+    """
+    if not lines.rests:
+        return np.zeros(0, dtype=dtype), None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data" when every line is empty
+            records = np.loadtxt(lines.rests, dtype=dtype, comments=None, ndmin=1)
+        if records.shape == (len(lines.rests),):
+            return records, None
+        reason = "numpy's parser skipped a line"
+    except ValueError as err:
+        reason = str(err)
+    error = _scan_for_bad_line(lines, tag, fields, n_ints, path)
+    if error is None:  # the per-line scan disagrees with numpy: report what numpy said
+        error = G2oFormatError(f"{tag} lines could not be parsed: {reason}", path)
+    return np.zeros(0, dtype=dtype), error
+
+
+def _scan_for_bad_line(
+    lines: _Lines, tag: str, fields: tuple[str, ...], n_ints: int, path: str
+) -> G2oFormatError | None:
+    for number, rest in zip(lines.numbers.tolist(), lines.rests):
+        tokens = rest.split()
+        if len(tokens) != len(fields):
+            return G2oFormatError(
+                f"{tag} needs {len(fields)} fields after the tag ({_describe_fields(fields)}), found {len(tokens)}",
+                path,
+                number,
+            )
+        for k, token in enumerate(tokens):
+            if k < n_ints:
+                if not _is_integer(token):
+                    return G2oFormatError(
+                        f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not an integer id", path, number
+                    )
+            elif not _is_number(token):
+                return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not a number", path, number)
+    return None
+
+
+def _describe_fields(fields: tuple[str, ...]) -> str:
+    if len(fields) > 12:  # the edge's 21 information entries
+        return " ".join(fields[:9]) + " and the 21 upper-triangular information entries"
+    return " ".join(fields)
+
+
+def _is_integer(token: str) -> bool:
+    """Decimal digits with an optional sign, within int64 (Python's int() would also take "1_0")."""
+    return bool(_INTEGER.fullmatch(token)) and -(2**63) <= int(token) < 2**63
+
+
+def _is_number(token: str) -> bool:
+    # The same parser as the fast path, so that the scan finds what it rejected
+    # (Python's float() would accept "1_0", which numpy's parser does not).
+    try:
+        np.loadtxt([token], dtype=np.float64, comments=None, ndmin=1)
+    except ValueError:
+        return False
+    return True
+
+
+def _parse_fix(lines: _Lines, path: str) -> tuple[np.ndarray, np.ndarray, G2oFormatError | None]:
+    """Ids of ``FIX`` lines and the line each came from (there are few such lines)."""
+    ids: list[int] = []
+    numbers: list[int] = []
+    for number, rest in zip(lines.numbers.tolist(), lines.rests):
+        tokens = rest.split()
+        if not tokens:
+            error = G2oFormatError(f"{FIX_TAG} needs at least one vertex id", path, number)
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), error
+        for k, token in enumerate(tokens):
+            if not _is_integer(token):
+                error = G2oFormatError(f"{FIX_TAG} field {k + 1} is {token!r}, not an integer id", path, number)
+                return np.zeros(0, np.int64), np.zeros(0, np.int64), error
+            ids.append(int(token))
+            numbers.append(number)
+    return np.array(ids, dtype=np.int64), np.array(numbers, dtype=np.int64), None
+
+
+def _check_negative_ids(ids: np.ndarray, numbers: np.ndarray, path: str) -> G2oFormatError | None:
+    bad = np.flatnonzero(ids < 0)
+    if bad.size == 0:
+        return None
+    k = bad[0]
+    return G2oFormatError(
+        f"{VERTEX_TAG} id {ids[k]} is negative; vertex ids must be non-negative integers", path, int(numbers[k])
+    )
+
+
+def _raise_first(errors: list[InputError | None]) -> None:
+    """Raise the error that comes first in the file (errors without a line last)."""
+    found = [e for e in errors if e is not None]
+    if found:
+        raise min(found, key=lambda e: (e.line is None, e.line or 0))
+
+
+def _check_finite(
+    records: np.ndarray, numbers: np.ndarray, tag: str, fields: tuple[str, ...], path: str
+) -> G2oFormatError | None:
+    """An error naming the first line and field holding NaN or an infinity."""
+    names = [name for name in records.dtype.names if records.dtype[name].base.kind == "f"]
+    widths = [int(np.prod(records.dtype[name].shape)) for name in names]
+    values = np.concatenate([records[name].reshape(len(records), w) for name, w in zip(names, widths)], axis=1)
+    finite = np.isfinite(values)
+    bad_rows = np.flatnonzero(~finite.all(axis=1))
+    if bad_rows.size == 0:
+        return None
+    row = bad_rows[0]
+    col = int(np.flatnonzero(~finite[row])[0])
+    field = len(fields) - values.shape[1] + col  # the float fields come after the integer ids
+    return G2oFormatError(
+        f"{tag} field {field + 1} ({fields[field]}) is {values[row, col]}; values must be finite",
+        path,
+        int(numbers[row]),
+    )
+
+
+def _unit_quaternions(
+    q: np.ndarray, numbers: np.ndarray, tag: str, path: str
+) -> tuple[np.ndarray, G2oFormatError | None]:
+    """``q (k,4)`` divided by its norm (as gtsam does); an error for the first zero-norm one."""
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    zero = np.flatnonzero(norm <= ZERO_QUATERNION_NORM)  # NaN rows compare False: reported as non-finite
+    if zero.size:
+        k = zero[0]
+        error = G2oFormatError(
+            f"{tag} quaternion (qx qy qz qw) = {tuple(q[k].tolist())} has zero norm: it is not a rotation",
+            path,
+            int(numbers[k]),
+        )
+        return q, error
+    return q / norm[:, None], None
+
+
+def _quaternion_note(quaternions: list[np.ndarray], numbers: list[np.ndarray], path: str) -> list[str]:
+    """One warning for all quaternions whose norm is off by more than the tolerance."""
+    norms = np.concatenate([np.sqrt(np.einsum("ij,ij->i", q, q)) for q in quaternions])
+    lines = np.concatenate(numbers)
+    off = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if off.size == 0:
+        return []
+    first = off[np.argmin(lines[off])]
+    return [
+        f"{path}:{int(lines[first])}: normalised {off.size} quaternion(s) whose norm was off by more "
+        f"than {QUATERNION_NORM_TOLERANCE:g} (this one: {norms[first]:.9g})"
+    ]
+
+
+def _information(
+    upper: np.ndarray, numbers: np.ndarray, path: str
+) -> tuple[np.ndarray, G2oFormatError | None, str | None]:
+    """``(m, 6, 6)`` information in ``[ω; v]`` order from g2o's 21 upper-triangular entries, checked.
+
+    Returns the matrices, an error for the first zero or non-PSD matrix, and a
+    warning text if some are singular (see the module docstring for the policy).
+    Rows holding NaN or infinities are left to :func:`_check_finite`.
+    """
+    information = upper[:, _TANGENT_FROM_UPPER].reshape(-1, 6, 6)
+    finite = np.isfinite(upper).all(axis=1)
+    checked = information if finite.all() else np.where(finite[:, None, None], information, np.eye(6))
+    # Fast path: Cholesky succeeds for the whole batch iff every matrix is positive definite.
+    try:
+        np.linalg.cholesky(checked)
+        return information, None, None
+    except np.linalg.LinAlgError:
+        pass
+    eigenvalues = np.linalg.eigvalsh(checked)  # ascending
+    scale = np.abs(eigenvalues).max(axis=1)
+    lowest = eigenvalues[:, 0]
+    zero = ~np.any(upper != 0, axis=1)
+    not_psd = lowest < -PSD_TOLERANCE * scale
+    singular = (lowest <= SINGULAR_TOLERANCE * scale) & ~not_psd & ~zero
+    bad = np.flatnonzero(zero | not_psd)
+    if bad.size:
+        e = bad[0]
+        if zero[e]:
+            reason = "the information matrix is all zero: the edge would constrain nothing"
+        else:
+            shown = np.array2string(eigenvalues[e], precision=4, separator=", ")
+            reason = f"the information matrix is not positive semi-definite (eigenvalues {shown})"
+        return information, G2oFormatError(f"{EDGE_TAG}: {reason}", path, int(numbers[e])), None
+    note = None
+    if singular.any():
+        first = np.flatnonzero(singular)[0]
+        note = (
+            f"{path}:{int(numbers[first])}: {np.count_nonzero(singular)} {EDGE_TAG} information matrices are "
+            "singular: accepted as given; other edges must constrain the directions they leave free "
+            "(gtsam's Gaussian noise model does not represent singular matrices exactly)"
+        )
+    return information, None, note
+
+
+def _check_duplicates(ids: np.ndarray, order: np.ndarray, numbers: np.ndarray, path: str) -> GraphError | None:
+    sorted_ids = ids[order]
+    repeat = np.flatnonzero(sorted_ids[1:] == sorted_ids[:-1]) + 1
+    if repeat.size == 0:
+        return None
+    # With a stable sort, order[r] is a later line than order[r - 1]; report the earliest repeat.
+    r = repeat[np.argmin(order[repeat])]
+    first = r
+    while first > 0 and sorted_ids[first - 1] == sorted_ids[r]:
+        first -= 1
+    return GraphError(
+        f"duplicate vertex id {sorted_ids[r]} (first defined on line {int(numbers[order[first]])})",
+        path,
+        int(numbers[order[r]]),
+    )
+
+
+def _resolve(
+    wanted: np.ndarray, order: np.ndarray, sorted_ids: np.ndarray, numbers: np.ndarray, what: str, path: str
+) -> tuple[np.ndarray, GraphError | None]:
+    """Vertex indices of ``wanted`` ids; an error naming the first line with an unknown id."""
+    pos = np.clip(np.searchsorted(sorted_ids, wanted), 0, len(sorted_ids) - 1)
+    found = sorted_ids[pos] == wanted
+    if found.all():
+        return order[pos], None
+    k = np.flatnonzero(~found)[0]
+    return np.zeros(0, np.int64), GraphError(
+        f"{what} names vertex {wanted[k]}, which has no {VERTEX_TAG} line", path, int(numbers[k])
+    )
+
+
+def _matrices(rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(translations), 4, 4))
+    out[:, :3, :3] = rotations
+    out[:, :3, 3] = translations
+    out[:, 3, 3] = 1.0
+    return out
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
+    """The g2o text of ``graph`` with vertex poses ``poses (n,4,4)`` (default ``graph.poses``).
+
+    Vertices in the graph's order with their ids, one ``FIX id`` line per fixed
+    vertex, then the edges with the information permuted back to g2o's
+    ``[t; R]`` order (upper triangle, row by row). Quaternions are
+    ``qx qy qz qw`` with ``qw ≥ 0``; floats are written with ``repr``, the
+    shortest decimal that reads back to the same double.
+    """
+    poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    if poses.shape != (graph.num_vertices, 4, 4):
+        raise ValueError(f"poses must have shape {(graph.num_vertices, 4, 4)}, got {poses.shape}")
+    vertex_values = np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)
+    g2o_information = graph.information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT]
+    edge_values = np.concatenate(
+        [
+            graph.measurements[:, :3, 3],
+            so3.to_quaternion(graph.measurements[:, :3, :3]),
+            g2o_information[:, _UPPER_ROWS, _UPPER_COLS],
+        ],
+        axis=1,
+    )
+    vertex_line = VERTEX_TAG + " %d" + " %r" * 7 + "\n"
+    edge_line = EDGE_TAG + " %d %d" + " %r" * 28 + "\n"
+    parts = [vertex_line % (i, *v) for i, v in zip(graph.ids.tolist(), vertex_values.tolist())]
+    parts += [f"{FIX_TAG} {i}\n" for i in graph.ids[graph.fixed].tolist()]
+    ends = zip(graph.ids[graph.edge_from].tolist(), graph.ids[graph.edge_to].tolist(), edge_values.tolist())
+    parts += [edge_line % (i, j, *v) for i, j, v in ends]
+    return "".join(parts)
+
+
+def write_g2o(
+    path: str | os.PathLike,
+    graph: PoseGraph,
+    poses: np.ndarray | None = None,
+    *,
+    overwrite_input: bool = False,
+) -> None:
+    """Write ``graph`` with vertex poses ``poses (n,4,4)`` (default ``graph.poses``) to a g2o file.
+
+    The text (see :func:`format_g2o`) is written to a temporary file in the
+    target's folder, flushed to disk, then renamed over ``path``: on any
+    exception, ``KeyboardInterrupt`` included, the temporary file is removed
+    and ``path`` is left as it was.
+
+    Raises
+    ------
+    OutputError
+        ``path`` is the file the graph was read from (``graph.source``) and
+        ``overwrite_input`` is False; the folder does not exist; ``path`` is a
+        folder; ``poses`` hold NaN or infinite values; the file cannot be written.
+    ValueError
+        ``poses`` has the wrong shape.
+    """
+    target = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(target))
+    if not os.path.isdir(folder):
+        raise OutputError(f"the output folder {folder} does not exist", target)
+    if os.path.isdir(target):
+        raise OutputError("the output path is a folder", target)
+    if not overwrite_input and _is_same_file(target, graph.source):
+        raise OutputError(
+            "refusing to overwrite the input file the graph was read from "
+            "(write elsewhere, or pass overwrite_input=True)",
+            target,
+        )
+    values = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    if values.shape == graph.poses.shape and not np.isfinite(values).all():
+        raise OutputError("the poses to write contain NaN or infinite values", target)
+    text = format_g2o(graph, values)  # everything that can fail is done before the disk is touched
+    _replace_atomically(target, text)
+
+
+def _is_same_file(target: str, source: str | None) -> bool:
+    if source is None:
+        return False
+    try:
+        return os.path.samefile(target, source)
+    except OSError:  # one of them does not exist: nothing to overwrite
+        return False
+
+
+def _replace_atomically(target: str, text: str) -> None:
+    try:
+        with atomic_path(target) as temporary:
+            with open(temporary, "w", encoding="utf-8", newline="\n") as handle:
+                handle.write(text)
+                handle.flush()
+                os.fsync(handle.fileno())  # on disk before the rename makes it the target
+    except OSError as err:
+        raise OutputError(f"cannot write the file: {err.strerror or err}", target) from err

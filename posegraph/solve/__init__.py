@@ -1,0 +1,24 @@
+"""Sparse Gauss-Newton / Levenberg-Marquardt for SE(3) pose graphs.
+
+::
+
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve import SolverParams, optimize
+
+    graph = read_g2o("sphere2500.g2o")
+    result = optimize(graph, initial="file", params=SolverParams(method="lm"))
+    print(result.summary())
+
+Modules: :mod:`~posegraph.solve.residuals` (residuals, cost, Jacobians),
+:mod:`~posegraph.solve.linearize` (per-edge normal-equation blocks),
+:mod:`~posegraph.solve.sparsity` (block pattern and scatter),
+:mod:`~posegraph.solve.linear` (CHOLMOD / SuperLU backends),
+:mod:`~posegraph.solve.optimizer` (the GN and LM loops),
+:mod:`~posegraph.solve.params` and :mod:`~posegraph.solve.result` (dataclasses).
+"""
+
+from posegraph.solve.optimizer import optimize
+from posegraph.solve.params import SolverParams
+from posegraph.solve.result import IterationRecord, OptimizeResult
+
+__all__ = ["SolverParams", "OptimizeResult", "IterationRecord", "optimize"]

@@ -1,0 +1,118 @@
+"""Solver parameters: one dataclass with a docstring per field.
+
+The names and meanings follow gtsam's ``NonlinearOptimizerParams`` and
+``LevenbergMarquardtParams`` where they exist; the defaults differ where
+gtsam's would stop short of the optimum (see ``docs/solver.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+__all__ = ["SolverParams"]
+
+_METHODS = ("lm", "gn")
+_LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
+_LAMBDA_UPDATES = ("nielsen", "fixed")
+
+
+@dataclass
+class SolverParams:
+    """Parameters of :func:`posegraph.solve.optimize`.
+
+    Convergence is gtsam's test, ``Δ = cost_before − cost_after`` after an
+    accepted step: converged when ``Δ <= absolute_tolerance`` or
+    ``Δ / cost_before <= relative_tolerance``; in addition when the cost itself
+    is at most ``cost_tolerance`` or when the linear model predicts a decrease
+    smaller than those tolerances (then no step can do measurably better).
+    """
+
+    method: str = "lm"
+    """``"lm"`` (Levenberg-Marquardt, the robust default) or ``"gn"`` (plain Gauss-Newton steps)."""
+
+    max_iterations: int = 100
+    """Maximum number of outer iterations (relinearisations), as gtsam's ``maxIterations``.
+    LM retries of one iteration with a larger λ do not count as iterations."""
+
+    relative_tolerance: float = 1e-10
+    """Stop when an accepted step decreases the cost by at most this fraction of it
+    (gtsam's ``relativeErrorTol``, there 1e-5; tighter here so that the optimum is reached to
+    ~1e-9 relative — near the optimum GN/LM converge quadratically, so it costs 1–3 iterations)."""
+
+    absolute_tolerance: float = 1e-12
+    """Stop when an accepted step decreases the cost by at most this much (gtsam's
+    ``absoluteErrorTol``, there 1e-5)."""
+
+    cost_tolerance: float = 0.0
+    """Stop when the cost is at most this (gtsam's ``errorTol``)."""
+
+    initial_lambda: float = 1e-5
+    """LM: initial damping λ (gtsam's ``lambdaInitial``, same default)."""
+
+    lambda_factor: float = 10.0
+    """LM with ``lambda_update="fixed"``: λ is multiplied by it after a rejected step and divided by it
+    after an accepted one (gtsam's ``lambdaFactor``). With ``"nielsen"`` it is unused."""
+
+    lambda_min: float = 1e-12
+    """LM: lower bound of λ (gtsam's ``lambdaLowerBound`` is 0; a positive floor keeps the damped
+    system positive definite when H is singular to round-off)."""
+
+    lambda_max: float = 1e10
+    """LM: when a rejected step would push λ above this, stop with ``"lambda exceeded bound"``
+    (gtsam's ``lambdaUpperBound``, there 1e5 with λ·I damping)."""
+
+    lambda_update: str = "nielsen"
+    """LM: how λ follows the gain ratio ρ = actual / predicted decrease. ``"nielsen"``
+    (Nielsen 1999; Madsen, Nielsen & Tingleff, *Methods for non-linear least squares problems*, 2004):
+    accepted → λ·max(1/3, 1 − (2ρ − 1)³), rejected → λ·ν with ν doubling on each consecutive
+    rejection. ``"fixed"``: gtsam's default, ÷/× ``lambda_factor``."""
+
+    min_gain_ratio: float = 1e-3
+    """LM: a step is accepted when ρ exceeds this (gtsam's ``minModelFidelity``, same default)."""
+
+    diagonal_damping: bool = True
+    """LM: damp with λ·diag(H) (Marquardt, scale invariant; diagonal clamped to
+    [``min_diagonal``, ``max_diagonal``] as gtsam does) if True, else with λ·I (gtsam's default,
+    ``diagonalDamping=false``)."""
+
+    min_diagonal: float = 1e-6
+    """LM with ``diagonal_damping``: lower clamp of diag(H) in the damping term (gtsam's ``minDiagonal``)."""
+
+    max_diagonal: float = 1e32
+    """LM with ``diagonal_damping``: upper clamp of diag(H) in the damping term (gtsam's ``maxDiagonal``)."""
+
+    linear_solver: str = "auto"
+    """Sparse solver for the normal equations: ``"cholmod"`` (scikit-sparse, supernodal Cholesky,
+    symbolic analysis once per graph), ``"scipy"`` (SuperLU in symmetric mode; needs only scipy),
+    or ``"auto"`` (CHOLMOD when importable, else scipy)."""
+
+    ordering: str = "auto"
+    """Fill-reducing ordering for ``"cholmod"``: ``"amd"``, ``"metis"``, ``"nesdis"``, ``"best"`` or
+    ``"auto"`` (the one measured fastest on pose graphs, see ``docs/solver.md``). Ignored by ``"scipy"``."""
+
+    callback: Optional[Callable[..., None]] = None
+    """Called with each :class:`~posegraph.solve.result.IterationRecord` as it is made (e.g. to print
+    progress). Returning ``True`` (or raising ``StopIteration``) stops the solver with reason ``"callback"``."""
+
+    def __post_init__(self) -> None:
+        if self.method not in _METHODS:
+            raise ValueError(f"method must be one of {_METHODS}, got {self.method!r}")
+        if self.linear_solver not in _LINEAR_SOLVERS:
+            raise ValueError(f"linear_solver must be one of {_LINEAR_SOLVERS}, got {self.linear_solver!r}")
+        if self.lambda_update not in _LAMBDA_UPDATES:
+            raise ValueError(f"lambda_update must be one of {_LAMBDA_UPDATES}, got {self.lambda_update!r}")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 0:
+            raise ValueError(f"max_iterations must be a non-negative integer, got {self.max_iterations!r}")
+        for name in ("relative_tolerance", "absolute_tolerance", "cost_tolerance", "lambda_min", "min_diagonal"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        for name in ("initial_lambda", "lambda_max", "max_diagonal"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if not self.lambda_factor > 1:
+            raise ValueError(f"lambda_factor must be > 1, got {self.lambda_factor!r}")
+        if not self.lambda_min <= self.initial_lambda <= self.lambda_max:
+            raise ValueError("need lambda_min <= initial_lambda <= lambda_max")
+        if self.callback is not None and not callable(self.callback):
+            raise ValueError("callback must be callable or None")

@@ -1,0 +1,100 @@
+"""Edge residuals, the cost and the residual Jacobians of an SE(3) pose graph.
+
+Conventions (``docs/architecture.md``): poses are ``(n, 4, 4)`` world-from-body
+matrices, tangents are ``[ω; v]`` (rotation first), perturbations are on the
+right, ``X ⊕ δ = X · Exp(δ)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.graph import PoseGraph
+from posegraph.lie import se3
+
+__all__ = ["edge_residuals", "cost", "weighted_cost", "edge_jacobians", "edge_errors"]
+
+# The residual of one edge
+# ------------------------
+# An edge between vertices i and j carries a measurement Z_ij of the pose of
+# j seen from i, i.e. of X_i⁻¹ X_j, and an information matrix Ω_ij (the
+# inverse covariance of the measurement, [ω; v] order). The pose of j
+# predicted from i differs from the measured one by the relative pose
+#
+#     E_ij = Z_ij⁻¹ · (X_i⁻¹ · X_j),
+#
+# which is the identity when the measurement is met exactly. The residual is
+# that discrepancy expressed in the tangent space at the identity,
+#
+#     e_ij = Log(E_ij) ∈ R⁶,  [ω; v]: rotation error (axis·angle), then translation,
+#
+# and the cost is the squared Mahalanobis norm summed over edges,
+#
+#     F(X) = ½ Σ_ij e_ijᵀ Ω_ij e_ij,
+#
+# exactly gtsam's BetweenFactor<Pose3>: evaluateError returns
+# Local(Z, between(X_i, X_j)) = Log(Z⁻¹ X_i⁻¹ X_j) and NonlinearFactorGraph.error
+# sums ½ ‖R e‖² with Rᵀ R = Ω. (Ceres' pose_graph_3d example uses a different
+# error, 2·vec(q) for rotation and a rotated translation difference, which
+# agrees with this one only to first order.)
+#
+# Jacobians, perturbing X_j ← X_j · Exp(δ_j):
+#     E_ij(δ_j) = E_ij · Exp(δ_j)  ⇒  ∂e/∂δ_j = Jr⁻¹(e)   (right Jacobian of Log).
+# Perturbing X_i ← X_i · Exp(δ_i): X_i⁻¹ becomes Exp(−δ_i) X_i⁻¹ and
+#     E_ij(δ_i) = Z⁻¹ Exp(−δ_i) X_i⁻¹ X_j = E_ij · Exp(−Ad(X_j⁻¹ X_i) δ_i)
+# (moving Exp(−δ_i) past T = X_i⁻¹ X_j: Exp(a) T = T Exp(Ad(T⁻¹) a)), so
+#     ∂e/∂δ_i = −Jr⁻¹(e) · Ad(X_j⁻¹ X_i).
+
+
+def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
+    """``(m, 4, 4)`` ``X_i⁻¹ X_j`` for every edge."""
+    return se3.between(poses[graph.edge_from], poses[graph.edge_to])
+
+
+def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
+    """Relative poses ``X_i⁻¹ X_j`` ``(m, 4, 4)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, 6)``."""
+    relative = _relative_poses(np.asarray(poses, dtype=np.float64), graph)
+    residuals = se3.log(se3.between(graph.measurements, relative))
+    return relative, residuals
+
+
+def edge_residuals(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
+    """Residuals ``e_ij = Log(Z_ij⁻¹ · X_i⁻¹ · X_j)`` of all edges, ``(m, 6)`` in ``[ω; v]`` order.
+
+    ``poses`` is ``(n, 4, 4)`` in the graph's vertex order.
+    """
+    return edge_errors(poses, graph)[1]
+
+
+def weighted_cost(residuals: np.ndarray, information: np.ndarray) -> float:
+    """``½ Σ_k r_kᵀ Ω_k r_k`` for residuals ``(m, 6)`` and informations ``(m, 6, 6)``."""
+    weighted = (information @ residuals[..., None])[..., 0]
+    return 0.5 * float(np.einsum("mi,mi->", residuals, weighted))
+
+
+def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
+    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, 4, 4)`` (the graph's own poses if None).
+
+    Equals gtsam's ``NonlinearFactorGraph.error(values)`` for the graph ``gtsam.readG2o`` builds.
+    """
+    if poses is None:
+        poses = graph.poses
+    return weighted_cost(edge_residuals(poses, graph), graph.information)
+
+
+def edge_jacobians(
+    poses: np.ndarray, graph: PoseGraph, residuals: np.ndarray | None = None, relative: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians ``(∂e/∂δ_i, ∂e/∂δ_j)`` of every edge residual, each ``(m, 6, 6)``.
+
+    With right perturbations ``X ← X · Exp(δ)`` (derivation above :func:`edge_residuals`)::
+
+        ∂e/∂δ_j = Jr⁻¹(e),      ∂e/∂δ_i = −Jr⁻¹(e) · Ad(X_j⁻¹ X_i).
+
+    ``residuals`` and ``relative`` (``X_i⁻¹ X_j``) may be passed to avoid recomputing them.
+    """
+    if residuals is None or relative is None:
+        relative, residuals = edge_errors(poses, graph)
+    jr_inv = se3.right_jacobian_inverse(residuals)
+    jacobian_i = -jr_inv @ se3.adjoint(se3.inverse(relative))
+    return jacobian_i, jr_inv

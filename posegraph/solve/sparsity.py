@@ -1,0 +1,207 @@
+"""Block sparsity of the normal equations, analysed once per graph.
+
+The Gauss-Newton matrix ``H = Σ_e J_eᵀ Ω_e J_e`` of a pose graph has one
+6×6 block per free vertex on the diagonal and one 6×6 block per pair of free
+vertices joined by at least one edge. Only the **lower triangle** is stored,
+in CSC form (the layout CHOLMOD reads with ``stype = -1``): diagonal blocks
+keep their 21 entries on and below the diagonal, off-diagonal blocks all 36.
+
+:func:`analyze_pattern` computes that layout once, together with the position
+in the CSC ``data`` array of every entry of every edge's blocks ``H_ii``,
+``H_jj`` and ``H_ij``. Each iteration :func:`hessian_values` and
+:func:`gradient_values` then scatter-add the new per-edge blocks with one
+sparse matrix–vector product each — no Python loop over edges. Entries that are
+not stored (upper halves of diagonal blocks, blocks of held vertices) simply
+have no column in that scatter matrix.
+
+Variables: vertex ``k`` is *free* unless ``held[k]``; free vertices are
+numbered ``0..p-1`` in vertex order and vertex ``k``'s tangent occupies rows
+``6·c .. 6·c+5`` of the system, ``c = variable_of[k]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_csc"]
+
+BLOCK = 6
+"""Tangent dimension of SE(3): the block size."""
+
+
+@dataclass(frozen=True, eq=False)
+class HessianPattern:
+    """Lower-triangular CSC layout of H and the scatter maps from per-edge blocks into it."""
+
+    num_vertices: int
+    """Number of graph vertices ``n``."""
+    variable_of: np.ndarray
+    """``(n,)`` int64: block column of each vertex, ``-1`` for held (fixed or anchored) vertices."""
+    num_variables: int
+    """Number of free vertices ``p``; the system has dimension ``6p``."""
+    indptr: np.ndarray
+    """``(6p + 1,)`` int32 CSC column pointers of the lower triangle."""
+    indices: np.ndarray
+    """``(nnz,)`` int32 CSC row indices, sorted within each column (diagonal entry first)."""
+    diagonal: np.ndarray
+    """``(6p,)`` int64 positions of the diagonal entries in ``data``."""
+    hessian_scatter: sp.csr_matrix
+    """``(nnz, 108·m)`` 0/1 matrix: ``data = hessian_scatter @ blocks.ravel()`` for ``blocks`` of
+    shape ``(m, 3, 6, 6)`` stacking ``[H_ii, H_jj, H_ij]`` of each edge."""
+    gradient_scatter: sp.csr_matrix
+    """``(6p, 12·m)`` 0/1 matrix: ``g = gradient_scatter @ grads.ravel()`` for ``grads`` of shape
+    ``(m, 2, 6)`` stacking ``[g_i, g_j]`` of each edge."""
+
+    @property
+    def dimension(self) -> int:
+        """Size ``6p`` of the linear system."""
+        return BLOCK * self.num_variables
+
+    @property
+    def nnz(self) -> int:
+        """Number of stored (lower-triangle) entries."""
+        return int(self.indices.shape[0])
+
+    def expand(self, delta: np.ndarray) -> np.ndarray:
+        """``(6p,)`` solution vector -> ``(n, 6)`` per-vertex tangent steps, zero for held vertices."""
+        out = np.zeros((self.num_vertices, BLOCK))
+        free = self.variable_of >= 0
+        out[free] = np.asarray(delta).reshape(-1, BLOCK)
+        return out
+
+
+def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPattern:
+    """Compute the block sparsity of H and the per-edge scatter maps.
+
+    Parameters
+    ----------
+    num_vertices : int
+    edge_from, edge_to : (m,) int arrays
+        Vertex indices ``i`` and ``j`` of each edge (``i != j``).
+    held : (n,) bool array
+        Vertices held constant (fixed vertices and gauge anchors); they get no variables.
+    """
+    n = int(num_vertices)
+    ei = np.asarray(edge_from, dtype=np.int64)
+    ej = np.asarray(edge_to, dtype=np.int64)
+    held = np.asarray(held, dtype=bool)
+    if held.shape != (n,):
+        raise ValueError(f"held must have shape ({n},), got {held.shape}")
+    if np.any(ei == ej):
+        raise ValueError("edges joining a vertex to itself are not supported")
+    m = ei.shape[0]
+
+    variable_of = np.full(n, -1, dtype=np.int64)
+    free = ~held
+    p = int(np.count_nonzero(free))
+    variable_of[free] = np.arange(p)
+    ci, cj = variable_of[ei], variable_of[ej]
+
+    # --- block pattern (lower triangle): unique (block row, block col) pairs with row > col.
+    both = (ci >= 0) & (cj >= 0)
+    brow = np.maximum(ci[both], cj[both])
+    bcol = np.minimum(ci[both], cj[both])
+    key = np.unique(bcol * max(p, 1) + brow)  # sorted by column, then row
+    off_col, off_row = key // max(p, 1), key % max(p, 1)
+    off_per_col = np.bincount(off_col, minlength=p)
+    # start of each block column's off-diagonal blocks in the sorted key list
+    off_start = np.concatenate(([0], np.cumsum(off_per_col)))[:-1]
+
+    # --- scalar CSC layout. Column 6c+q holds (6-q) diagonal-block rows then 6 rows per off-diagonal block.
+    q = np.arange(BLOCK)
+    col_len = (BLOCK - q)[None, :] + BLOCK * off_per_col[:, None]  # (p, 6)
+    indptr = np.concatenate(([0], np.cumsum(col_len.ravel()))).astype(np.int64)
+    nnz = int(indptr[-1])
+    if nnz > np.iinfo(np.int32).max:
+        raise ValueError("system too large for 32-bit sparse indices")
+
+    def slot(r, c, pr, qc):
+        """Data positions of entries (row 6r+pr, col 6c+qc) with r >= c (broadcast arrays)."""
+        start = indptr[BLOCK * c + qc]
+        diag = r == c
+        # position s of block (r, c) among column c's off-diagonal blocks
+        k = np.searchsorted(key, c * max(p, 1) + r)
+        s = k - off_start[c]
+        return np.where(diag, start + pr - qc, start + (BLOCK - qc) + BLOCK * s + pr)
+
+    # row indices: evaluate every stored slot's row by construction
+    indices = np.empty(nnz, dtype=np.int64)
+    cols = np.arange(p)
+    # diagonal blocks
+    pp, qq = np.meshgrid(q, q, indexing="ij")  # pp row, qq col within the block
+    lower = pp >= qq
+    dpos = slot(cols[:, None], cols[:, None], pp[lower][None, :], qq[lower][None, :])
+    indices[dpos] = (BLOCK * cols[:, None] + pp[lower][None, :])
+    if key.size:
+        opos = slot(off_row[:, None], off_col[:, None], pp.ravel()[None, :], qq.ravel()[None, :])
+        indices[opos] = BLOCK * off_row[:, None] + pp.ravel()[None, :]
+    diagonal = indptr[:-1].copy()  # diagonal entry is first in each column
+
+    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij]
+    rows_list, cols_list = [], []
+    flat = np.arange(m * 3 * 36, dtype=np.int64).reshape(m, 3, BLOCK, BLOCK)
+    for which, (a, b) in enumerate(((ci, ci), (cj, cj))):
+        sel = a >= 0
+        if np.any(sel):
+            c = a[sel][:, None]
+            rows_list.append(slot(c, c, pp[lower][None, :], qq[lower][None, :]).ravel())
+            cols_list.append(flat[sel, which][:, lower].ravel())
+    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci).
+    if np.any(both):
+        a, b = ci[both][:, None], cj[both][:, None]
+        pr, qc = pp.ravel()[None, :], qq.ravel()[None, :]
+        below = a > b
+        pos = slot(np.maximum(a, b), np.minimum(a, b), np.where(below, pr, qc), np.where(below, qc, pr))
+        rows_list.append(pos.ravel())
+        cols_list.append(flat[both, 2].reshape(-1, 36).ravel())
+    rows = np.concatenate(rows_list) if rows_list else np.zeros(0, np.int64)
+    colsel = np.concatenate(cols_list) if cols_list else np.zeros(0, np.int64)
+    hessian_scatter = sp.csr_matrix(
+        (np.ones(rows.shape[0]), (rows, colsel)), shape=(nnz, m * 3 * 36)
+    )
+    hessian_scatter.sum_duplicates()
+
+    # --- gradient scatter: grads (m, 2, 6) = [g_i, g_j]
+    gflat = np.arange(m * 2 * BLOCK, dtype=np.int64).reshape(m, 2, BLOCK)
+    grow, gcol = [], []
+    for which, c in enumerate((ci, cj)):
+        sel = c >= 0
+        grow.append((BLOCK * c[sel][:, None] + q[None, :]).ravel())
+        gcol.append(gflat[sel, which].ravel())
+    grow, gcol = np.concatenate(grow), np.concatenate(gcol)
+    gradient_scatter = sp.csr_matrix(
+        (np.ones(grow.shape[0]), (grow, gcol)), shape=(BLOCK * p, m * 2 * BLOCK)
+    )
+
+    return HessianPattern(
+        num_vertices=n,
+        variable_of=variable_of,
+        num_variables=p,
+        indptr=indptr.astype(np.int32),
+        indices=indices.astype(np.int32),
+        diagonal=diagonal,
+        hessian_scatter=hessian_scatter,
+        gradient_scatter=gradient_scatter,
+    )
+
+
+def hessian_values(pattern: HessianPattern, blocks: np.ndarray) -> np.ndarray:
+    """CSC ``data`` of the lower triangle of H from per-edge blocks ``(m, 3, 6, 6)`` = ``[H_ii, H_jj, H_ij]``.
+
+    ``H_ij = A_iᵀ Ω A_j`` is the block at (block row of ``i``, block column of ``j``).
+    """
+    return pattern.hessian_scatter @ np.ascontiguousarray(blocks).ravel()
+
+
+def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:
+    """``(6p,)`` gradient ``g = Σ Jᵀ Ω e`` from per-edge ``(m, 2, 6)`` = ``[A_iᵀ Ω e, A_jᵀ Ω e]``."""
+    return pattern.gradient_scatter @ np.ascontiguousarray(grads).ravel()
+
+
+def lower_csc(pattern: HessianPattern, data: np.ndarray) -> sp.csc_matrix:
+    """The lower triangle of H as a scipy CSC matrix (no copy of ``data``)."""
+    d = pattern.dimension
+    return sp.csc_matrix((data, pattern.indices, pattern.indptr), shape=(d, d), copy=False)

@@ -1,0 +1,82 @@
+"""`posegraph info` and the top-level command: figures checked against gtsam and the graph model."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from tests.cli.conftest import assert_one_error_line, run_cli
+
+
+def test_help_lists_every_command_with_examples():
+    run = run_cli("--help")
+    assert run.returncode == 0
+    for command in ("optimize", "compare", "verify-jacobians", "info", "eval", "plot", "export"):
+        assert command in run.stdout
+    assert "examples:" in run.stdout and "exit status" in run.stdout
+
+
+@pytest.mark.parametrize("command", ["optimize", "compare", "verify-jacobians", "info", "eval", "plot", "export"])
+def test_every_subcommand_help_has_examples(command):
+    # In-process: the parser is the program's, and a subprocess per command would only add time.
+    import contextlib
+    import io
+
+    import cli
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        status = cli.main([command, "--help"])
+    assert status == 0
+    text = out.getvalue()
+    examples = text.split("examples:\n", 1)[1]
+    assert f"posegraph {command}" in examples
+
+
+def test_installed_script_is_the_same_program():
+    script = shutil.which("posegraph")
+    if script is None:
+        pytest.skip("the posegraph console script is not installed (pip install -e .)")
+    installed = subprocess.run([script, "--version"], capture_output=True, text=True, timeout=60)
+    assert installed.returncode == 0
+    assert installed.stdout == run_cli("--version").stdout
+
+
+def test_info_figures_match_gtsam_and_the_graph(shared_dataset):
+    gtsam = pytest.importorskip("gtsam")
+    from posegraph.graph import connected_components
+    from posegraph.io.g2o import read_g2o
+
+    path = shared_dataset("parking-garage")
+    info = json.loads(run_cli("info", path, "--json").stdout)
+    factors, values = gtsam.readG2o(str(path), True)
+    assert info["num_vertices"] == values.size()
+    assert info["num_edges"] == factors.size()
+    assert info["initial_cost"] == pytest.approx(factors.error(values), rel=1e-9)
+    graph = read_g2o(path)
+    assert info["num_components"] == connected_components(graph)[0]
+    degree = np.bincount(np.r_[graph.edge_from, graph.edge_to], minlength=graph.num_vertices)
+    assert (info["degree_min"], info["degree_max"]) == (degree.min(), degree.max())
+    assert info["num_odometry_edges"] + info["num_loop_closures"] == graph.num_edges
+    diag = np.diagonal(graph.information, axis1=1, axis2=2)
+    assert info["information"]["rotation"]["diagonal_max"] == diag[:, :3].max()
+    assert info["information"]["translation"]["diagonal_min"] == diag[:, 3:].min()
+
+    text = run_cli("info", path)
+    assert text.returncode == 0
+    assert re.search(rf"vertices:\s+{info['num_vertices']}\b", text.stdout)
+    assert re.search(rf"edges:\s+{info['num_edges']}: {info['num_odometry_edges']} odometry", text.stdout)
+    cost = float(re.search(r"initial cost:\s+(\S+)", text.stdout).group(1))
+    assert cost == pytest.approx(info["initial_cost"], rel=1e-11)
+
+
+def test_info_on_a_malformed_file(tmp_path):
+    bad = tmp_path / "bad.g2o"
+    bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 0 1 0 0 0 0 0 1\n"
+                   "EDGE_SE3:QUAT 0 0 1 0 0 0 0 0 1" + " 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n")
+    assert_one_error_line(run_cli("info", bad), f"{bad}:")

@@ -1,0 +1,47 @@
+"""Shared inputs and finite differences for the Lie-core tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.lie import se3
+
+# The rotation angles every identity is checked at (issue 2), besides random inputs.
+EDGE_ANGLES = (0.0, 1e-12, 1e-8, 1e-4, 1.0, np.pi - 1e-6, np.pi)
+BATCH_SHAPES = ((), (1,), (3, 1, 2))
+
+
+def unit_vectors(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    u = rng.normal(size=shape + (3,))
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def rotation_vectors(rng, shape, max_angle=np.pi) -> np.ndarray:
+    """Rotation vectors with uniformly random axes and angles in [0, max_angle]."""
+    return unit_vectors(rng, shape) * rng.uniform(0.0, max_angle, size=shape + (1,))
+
+
+def tangents(rng, shape, max_angle=np.pi, translation_scale=2.0) -> np.ndarray:
+    """se(3) tangents [ω; v]: random-axis rotations up to ``max_angle``, v ~ N(0, scale²)."""
+    return np.concatenate([rotation_vectors(rng, shape, max_angle), translation_scale * rng.normal(size=shape + (3,))], axis=-1)
+
+
+def tangents_at_angle(rng, angle: float, n: int = 16) -> np.ndarray:
+    """``n`` tangents with |ω| = angle (random axes, random v)."""
+    return np.concatenate([angle * unit_vectors(rng, (n,)), rng.normal(size=(n, 3))], axis=-1)
+
+
+def poses(rng, shape, max_angle=np.pi) -> np.ndarray:
+    return se3.exp(tangents(rng, shape, max_angle))
+
+
+def central_difference(f, x0: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """Jacobian ``(..., m, k)`` of a batched ``f: (..., k) -> (..., m)`` at ``x0 (..., k)``.
+
+    All 2k evaluations go through one batched call of ``f``.
+    """
+    k = x0.shape[-1]
+    offsets = step * np.eye(k)
+    plus = f(x0[..., None, :] + offsets)  # (..., k, m): row j is f(x0 + h e_j)
+    minus = f(x0[..., None, :] - offsets)
+    return np.swapaxes(plus - minus, -1, -2) / (2.0 * step)

@@ -1,0 +1,115 @@
+"""Linear-solver backends: same solutions, positive-definiteness errors, selection rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from posegraph.solve import linear
+from posegraph.solve.linear import (
+    NotPositiveDefiniteError,
+    cholmod_available,
+    elimination_tree,
+    make_linear_solver,
+    tree_postorder,
+    vertex_ordering,
+)
+from posegraph.solve.sparsity import analyze_pattern, hessian_values, lower_csc
+from tests.solve.test_sparsity import random_blocks, random_graph
+
+BACKENDS = ["scipy", pytest.param("cholmod", marks=pytest.mark.skipif(not cholmod_available(), reason="scikit-sparse not installed"))]
+
+
+def spd_system(seed, n=30, m=80):
+    rng = np.random.default_rng(seed)
+    edge_from, edge_to = random_graph(rng, n, m)
+    held = np.zeros(n, dtype=bool)
+    held[0] = True
+    pattern = analyze_pattern(n, edge_from, edge_to, held)
+    data = hessian_values(pattern, random_blocks(rng, m))
+    data[pattern.diagonal] += 1e-2  # strictly positive definite
+    lower = lower_csc(pattern, data)
+    full = (lower + sp.tril(lower, k=-1).T).toarray()
+    return pattern, data, full, rng.normal(size=pattern.dimension)
+
+
+@pytest.mark.parametrize("kind", BACKENDS)
+@pytest.mark.parametrize("seed", range(3))
+def test_solution_matches_dense_solve(kind, seed):
+    pattern, data, full, rhs = spd_system(seed)
+    solver = make_linear_solver(kind, pattern)
+    solver.factorize(data)
+    np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(full, rhs), rtol=1e-9, atol=1e-9)
+    # numeric refactorisation with new values on the same pattern
+    data2 = data * 2.0
+    solver.factorize(data2)
+    np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(2.0 * full, rhs), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.skipif(not cholmod_available(), reason="scikit-sparse not installed")
+def test_cholmod_reports_indefinite_matrix():
+    pattern, data, _, _ = spd_system(0)
+    solver = make_linear_solver("cholmod", pattern)
+    bad = data.copy()
+    bad[pattern.diagonal[3]] = -1e3
+    with pytest.raises(NotPositiveDefiniteError):
+        solver.factorize(bad)
+    solver.factorize(data)  # recovers on the next good matrix
+
+
+def test_scipy_reports_exactly_singular_matrix():
+    pattern, data, _, _ = spd_system(1)
+    solver = make_linear_solver("scipy", pattern)
+    with pytest.raises(NotPositiveDefiniteError):
+        solver.factorize(np.zeros_like(data))
+
+
+def test_auto_picks_cholmod_when_available_else_scipy(monkeypatch):
+    pattern = spd_system(0)[0]
+    expected = "cholmod" if cholmod_available() else "scipy"
+    assert make_linear_solver("auto", pattern).name.startswith(expected)
+    monkeypatch.setattr(linear, "cholmod_available", lambda: False)
+    assert make_linear_solver("auto", pattern).name.startswith("scipy")
+    with pytest.raises(ImportError, match="scikit-sparse"):
+        make_linear_solver("cholmod", pattern)
+    with pytest.raises(ValueError, match="unknown linear solver"):
+        make_linear_solver("mumps", pattern)
+
+
+def test_elimination_tree_of_a_path_and_an_arrow():
+    # path 0-1-2-3: parent k -> k+1
+    path = sp.csc_matrix(np.eye(4) + np.eye(4, k=1) + np.eye(4, k=-1))
+    np.testing.assert_array_equal(elimination_tree(path), [1, 2, 3, -1])
+    # arrow: every node joined to the last only
+    arrow = np.eye(4)
+    arrow[3, :] = arrow[:, 3] = 1
+    np.testing.assert_array_equal(elimination_tree(sp.csc_matrix(arrow)), [3, 3, 3, -1])
+
+
+def test_elimination_tree_matches_dense_cholesky_fill():
+    # parent(i) = first off-diagonal nonzero row of column i of the Cholesky factor
+    rng = np.random.default_rng(5)
+    a = (rng.random((25, 25)) < 0.12).astype(float)
+    a = a + a.T + 25 * np.eye(25)
+    chol = np.linalg.cholesky(a)
+    expected = [int(np.flatnonzero(np.abs(chol[i + 1 :, i]) > 1e-14)[0] + i + 1) if np.any(np.abs(chol[i + 1 :, i]) > 1e-14) else -1 for i in range(25)]
+    np.testing.assert_array_equal(elimination_tree(sp.csc_matrix(a)), expected)
+
+
+def test_postorder_puts_children_before_parents_and_keeps_subtrees_contiguous():
+    parent = np.array([2, 2, 5, 4, 5, -1, -1])
+    order = tree_postorder(parent)
+    assert sorted(order.tolist()) == list(range(7))
+    position = np.argsort(order)
+    for child, par in enumerate(parent):
+        if par >= 0:
+            assert position[child] < position[par]
+    # subtree of 2 = {0, 1, 2} occupies consecutive positions
+    assert sorted(position[[0, 1, 2]].tolist()) == list(range(position[[0, 1, 2]].min(), position[[0, 1, 2]].min() + 3))
+
+
+def test_vertex_ordering_is_a_permutation_of_free_vertices():
+    pattern = spd_system(2, n=40, m=120)[0]
+    order = vertex_ordering(pattern)
+    assert sorted(order.tolist()) == list(range(pattern.num_variables))

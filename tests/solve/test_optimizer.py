@@ -1,0 +1,237 @@
+"""Gauss-Newton and Levenberg-Marquardt: gtsam's optimum on the standard files, gauge, records, stops."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from posegraph.graph import PoseGraph
+from posegraph.io.g2o import read_g2o
+from posegraph.solve import IterationRecord, OptimizeResult, SolverParams, optimize
+from posegraph.solve.linear import cholmod_available
+from posegraph.solve.residuals import cost
+from tests.solve.gtsam_reference import gtsam_graph, perturbed_poses
+
+# gtsam 4.3 LevenbergMarquardtOptimizer, default parameters, prior (σ=1e-6) on the first pose, from the
+# file's poses: torus3D stops at this cost (measured here; 20 s, too slow to recompute in a test).
+GTSAM_TORUS3D_FROM_FILE = 29953.8001826
+# The optimum of torus3D (guide's reference, gtsam LM from a good start).
+TORUS3D_OPTIMUM = 12117.6368794
+
+
+@functools.lru_cache(maxsize=None)
+def gtsam_lm_cost(path, tolerance=1e-5):
+    """gtsam LM's final cost (edges only) from the file's values, the first pose held by a tight prior.
+
+    ``tolerance`` is gtsam's relative and absolute error tolerance: its default 1e-5 can stop short
+    of the optimum (pose3example: 18853.0674 against 18853.0207 at 1e-12), so the optimum is taken
+    from a run at 1e-12 and the default run is the cost to beat.
+    """
+    gtsam = pytest.importorskip("gtsam")
+    factors, values = gtsam_graph(path)
+    first = min(values.keys())
+    anchored = gtsam.NonlinearFactorGraph(factors)
+    anchored.add(gtsam.PriorFactorPose3(first, values.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(tolerance)
+    params.setAbsoluteErrorTol(tolerance)
+    result = gtsam.LevenbergMarquardtOptimizer(anchored, values, params).optimize()
+    return factors.error(result)
+
+
+def check_optimum(result, path):
+    assert result.converged, result.termination
+    assert result.final_cost == pytest.approx(gtsam_lm_cost(str(path), 1e-12), rel=1e-6)
+    assert result.final_cost <= gtsam_lm_cost(str(path)) * (1 + 1e-12)  # at least as low as gtsam's default run
+
+
+STANDARD = ["tinyGrid3D", "smallGrid3D", "sphere2500", "parking-garage"]
+
+
+@pytest.mark.parametrize("method", ["lm", "gn"])
+@pytest.mark.parametrize("name", STANDARD)
+def test_reaches_gtsam_lm_cost_on_standard_files(name, method, shared_dataset):
+    path = shared_dataset(name)
+    graph = read_g2o(path)
+    result = optimize(graph, initial="file", params=SolverParams(method=method))
+    check_optimum(result, path)
+    assert cost(graph, result.poses) == pytest.approx(result.final_cost, rel=1e-12)  # no prior in the cost
+
+
+@pytest.mark.parametrize("method", ["lm", "gn"])
+def test_reaches_gtsam_lm_cost_on_pose3example(method, gtsam_example_file):
+    path = gtsam_example_file("pose3example.txt")
+    graph = read_g2o(path)
+    result = optimize(graph, initial="file", params=SolverParams(method=method))
+    check_optimum(result, path)
+
+
+@pytest.mark.skipif(not cholmod_available(), reason="compares the two backends")
+def test_backends_reach_the_same_optimum(shared_dataset):
+    graph = read_g2o(shared_dataset("smallGrid3D"))
+    a = optimize(graph, initial="file", params=SolverParams(linear_solver="cholmod"))
+    b = optimize(graph, initial="file", params=SolverParams(linear_solver="scipy"))
+    assert a.linear_solver.startswith("cholmod") and b.linear_solver.startswith("scipy")
+    assert a.final_cost == pytest.approx(b.final_cost, rel=1e-10)
+    np.testing.assert_allclose(a.poses, b.poses, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_torus3d_from_file_at_least_as_good_as_gtsam(shared_dataset):
+    graph = read_g2o(shared_dataset("torus3D"))
+    result = optimize(graph, initial="file", params=SolverParams(method="lm"))
+    assert result.final_cost <= GTSAM_TORUS3D_FROM_FILE
+    assert result.iterations <= 100
+
+
+@pytest.mark.slow
+def test_torus3d_with_chordal_start_reaches_the_optimum(shared_dataset):
+    pytest.importorskip("posegraph.init")
+    graph = read_g2o(shared_dataset("torus3D"))
+    result = optimize(graph, initial="chordal")
+    assert result.converged, result.termination
+    assert result.final_cost == pytest.approx(TORUS3D_OPTIMUM, rel=1e-6)
+
+
+# ---------------------------------------------------------------- synthetic graphs
+
+
+def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1):
+    """A noisy random walk with loop closures; initial poses = odometry with extra drift."""
+    rng = np.random.default_rng(seed)
+    truth = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(1, n):
+        truth[k] = truth[k - 1] @ perturbed_poses(np.eye(4)[None], rng, 0.3, 1.0)[0]
+    pairs = [(k, k + 1) for k in range(n - 1)]
+    pairs += [tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(loops)]
+    if components == 2:  # cut the walk in the middle, no loops across
+        half = n // 2
+        pairs = [(i, j) for i, j in pairs if (i < half) == (j < half)]
+    edge_from = np.array([p[0] for p in pairs])
+    edge_to = np.array([p[1] for p in pairs])
+    exact = np.linalg.inv(truth[edge_from]) @ truth[edge_to]
+    measurements = perturbed_poses(exact, rng, noise, noise)
+    information = np.tile(np.diag([400.0, 400, 400, 100, 100, 100]), (len(pairs), 1, 1))
+    initial = perturbed_poses(truth, rng, 0.1, 0.3)
+    mask = np.zeros(n, dtype=bool)
+    if fixed is not None:
+        mask[list(fixed)] = True
+    return PoseGraph(
+        ids=np.arange(n) * 3 + 7,  # ids need not be 0..n-1
+        poses=initial,
+        edge_from=edge_from,
+        edge_to=edge_to,
+        measurements=measurements,
+        information=information,
+        fixed=mask,
+    )
+
+
+@pytest.mark.parametrize("linear_solver", ["scipy", "auto"])
+def test_lm_and_gn_agree_on_a_synthetic_graph(linear_solver):
+    graph = synthetic_graph(0)
+    lm = optimize(graph, initial="file", params=SolverParams(method="lm", linear_solver=linear_solver))
+    gn = optimize(graph, initial="file", params=SolverParams(method="gn", linear_solver=linear_solver))
+    assert lm.converged and gn.converged
+    assert lm.final_cost < 0.1 * lm.initial_cost
+    assert lm.final_cost == pytest.approx(gn.final_cost, rel=1e-9)
+    np.testing.assert_allclose(lm.poses, gn.poses, atol=1e-6)
+
+
+def test_held_vertices_do_not_move_and_the_gauge_adds_nothing_to_the_cost():
+    graph = synthetic_graph(1, fixed=[3, 12])
+    result = optimize(graph, initial="file")
+    np.testing.assert_array_equal(result.poses[[3, 12]], graph.poses[[3, 12]])
+    # the anchor (smallest id) is free to move when the component has FIX vertices
+    assert not np.array_equal(result.poses[0], graph.poses[0])
+    assert result.final_cost == pytest.approx(cost(graph, result.poses), rel=1e-13)
+
+
+def test_each_component_is_anchored_at_its_smallest_id():
+    graph = synthetic_graph(2, n=20, components=2)
+    result = optimize(graph, initial="file")
+    assert result.converged
+    np.testing.assert_array_equal(result.poses[[0, 10]], graph.poses[[0, 10]])
+    assert np.abs(result.poses - graph.poses).max() > 1e-3
+
+
+def test_optimum_does_not_depend_on_which_single_vertex_holds_the_gauge():
+    free = synthetic_graph(3)
+    fixed_elsewhere = synthetic_graph(3, fixed=[17])
+    a = optimize(free, initial="file")
+    b = optimize(fixed_elsewhere, initial="file")
+    assert a.final_cost == pytest.approx(b.final_cost, rel=1e-9)
+    # the two solutions differ by one rigid motion: relative poses agree
+    rel_a = np.linalg.inv(a.poses[:-1]) @ a.poses[1:]
+    rel_b = np.linalg.inv(b.poses[:-1]) @ b.poses[1:]
+    np.testing.assert_allclose(rel_a, rel_b, atol=1e-7)
+
+
+def test_records_are_consistent_and_lm_cost_never_increases():
+    graph = synthetic_graph(4, noise=0.1)
+    seen = []
+    result = optimize(graph, initial="file", params=SolverParams(callback=seen.append))
+    assert isinstance(result, OptimizeResult)
+    assert seen == result.records and all(isinstance(r, IterationRecord) for r in seen)
+    assert result.iterations == len(result.records) > 0
+    costs = [result.initial_cost] + [r.cost for r in result.records]
+    assert all(b <= a for a, b in zip(costs, costs[1:]))
+    for before, record in zip(costs, result.records):
+        assert record.cost_decrease == pytest.approx(before - record.cost, abs=1e-12)
+        assert record.seconds >= 0 and record.attempts >= 1
+    assert result.final_cost == result.records[-1].cost
+    assert result.seconds_total >= result.seconds_linearize + result.seconds_factorize
+
+
+def test_maximum_iterations_and_callback_stop():
+    graph = synthetic_graph(5)
+    result = optimize(graph, initial="file", params=SolverParams(max_iterations=2))
+    assert (result.iterations, result.termination, result.converged) == (2, "maximum iterations", False)
+    result = optimize(graph, initial="file", params=SolverParams(callback=lambda record: True))
+    assert (result.iterations, result.termination) == (1, "callback")
+
+
+def test_lambda_bound_stops_lm():
+    # A λ ceiling below the first λ increase: the first rejected step ends the run.
+    graph = synthetic_graph(6, noise=0.2)
+    params = SolverParams(initial_lambda=1e-8, lambda_max=1e-8, lambda_min=0.0, min_gain_ratio=0.999999)
+    result = optimize(graph, initial="file", params=params)
+    assert result.termination == "lambda exceeded bound"
+    assert not result.converged
+    assert result.final_cost <= result.initial_cost
+
+
+def test_gauss_newton_on_an_exactly_consistent_graph_converges_to_zero():
+    graph = synthetic_graph(7, noise=0.0)
+    result = optimize(graph, initial="file", params=SolverParams(method="gn"))
+    assert result.converged
+    assert result.final_cost < 1e-15
+
+
+def test_nothing_to_optimise_when_every_vertex_is_held():
+    graph = synthetic_graph(8, n=5, loops=0, fixed=range(5))
+    result = optimize(graph, initial="file")
+    assert (result.termination, result.iterations, result.converged) == ("converged: nothing to optimise", 0, True)
+    np.testing.assert_array_equal(result.poses, graph.poses)
+
+
+def test_bad_initial_poses_and_parameters_are_refused():
+    graph = synthetic_graph(9, n=5, loops=0)
+    with pytest.raises(ValueError, match="shape"):
+        optimize(graph, initial=np.zeros((4, 4, 4)))
+    bad = graph.poses.copy()
+    bad[2, 0, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        optimize(graph, initial=bad)
+    for field, value in [("method", "newton"), ("linear_solver", "mumps"), ("max_iterations", -1), ("lambda_factor", 1.0)]:
+        with pytest.raises(ValueError, match=field):
+            SolverParams(**{field: value})
+
+
+def test_initial_poses_are_not_modified():
+    graph = synthetic_graph(10)
+    start = graph.poses.copy()
+    optimize(graph, initial=start)
+    np.testing.assert_array_equal(start, graph.poses)

@@ -1,0 +1,113 @@
+"""The benchmark harness end to end on a tiny synthetic graph, and its measuring and bookkeeping parts."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks import harness
+from datasets.synthetic import sphere, write_dataset
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_run_process_measures_this_childs_memory_and_time():
+    allocate = "import time, numpy as np; a = np.ones(40_000_000); time.sleep(0.2)"  # 320 MB
+    big = harness.run_process([sys.executable, "-c", allocate])
+    small = harness.run_process([sys.executable, "-c", "pass"])
+    assert big.returncode == 0 and small.returncode == 0
+    assert big.max_rss > 320e6 and small.max_rss < 100e6  # per child, not the maximum over all children
+    assert big.wall >= 0.2 and big.wall > small.wall
+    failed = harness.run_process([sys.executable, "-c", "import sys; sys.exit('boom')"])
+    assert failed.returncode == 1 and "boom" in failed.stderr
+    killed = harness.run_process([sys.executable, "-c", "import time; time.sleep(30)"], timeout=0.5)
+    assert killed.returncode < 0 and killed.wall < 10
+
+
+def test_normalise_report_reads_both_sides():
+    ours = {"initial_cost": 5.0, "final_cost": 1.0, "iterations": 3, "linear_solver": "cholmod",
+            "seconds": {"read": 0.1, "initialise": 0.2, "optimise": 0.3, "write": 0.4}}
+    theirs = {"initial_cost": 5.0, "final_cost": 1.0, "iterations": 4,
+              "seconds": {"import": 0.3, "read": 0.1, "initialize": 0.2, "optimize": 0.3, "write": 0.4}}
+    for report in (ours, theirs):
+        out = harness.normalise_report(report)
+        assert out["seconds"] == {"read": 0.1, "initialize": 0.2, "optimize": 0.3, "write": 0.4}
+        assert (out["initial_cost"], out["final_cost"]) == (5.0, 1.0)
+    assert harness.normalise_report(ours)["linear_solver"] == "cholmod"
+
+
+def test_compare_says_by_how_much_a_target_is_missed():
+    def summary(wall, cost):
+        return {"ok": True, "wall": wall, "final_cost": cost, "seconds": {"read": 0.1, "initialize": 0.1, "optimize": wall - 0.3, "write": 0.05, "other": 0.05}}
+
+    tools = {"posegraph": summary(1.2, 10.0), "gtsam-lm": summary(2.0, 10.0 * (1 + 1e-7)), "gtsam-gn": summary(1.0, 10.5)}
+    out = harness.compare("torus3D", tools)
+    assert out["ratio_vs_gtsam-lm"] == pytest.approx(0.6) and out["ratio_vs_gtsam-gn"] == pytest.approx(1.2)
+    assert out["cost_ok"] and out["gtsam_best_cost"] == pytest.approx(10.0 * (1 + 1e-7))
+    target = out["target"]
+    assert not target["ratio_met"] and target["ratio_over_by"] == pytest.approx(0.2)
+    assert target["seconds_over_budget"] == pytest.approx(0.2) and target["largest_phase"] == "optimize"
+    tools["posegraph"] = summary(0.9, 10.0 * (1 + 3e-6))
+    out = harness.compare("torus3D", tools)
+    assert out["target"]["ratio_met"] and not out["cost_ok"] and out["cost_excess"] == pytest.approx(2.9e-6, rel=1e-3)
+    assert "target" not in harness.compare("smallGrid3D", tools)
+
+
+def test_harness_end_to_end_on_a_tiny_graph(tmp_path):
+    """``python -m benchmarks`` on one tiny file, 1 round, ours and gtsam: JSON and Markdown with sane values."""
+    pytest.importorskip("gtsam")
+    data = sphere(rings=5, nodes_per_ring=6, seed=1)
+    path, _ = write_dataset(tmp_path / "tiny_sphere.g2o", data)
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "benchmarks", "--datasets", str(path), "--repeats", "1", "--warmup", "0",
+         "--tools", "posegraph", "gtsam-lm", "--startup-runs", "1", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads((out / "benchmark_results.json").read_text())
+    markdown = (out / "benchmark_results.md").read_text()
+    (entry,) = result["datasets"]
+    assert (entry["dataset"], entry["vertices"], entry["edges"]) == ("tiny_sphere", 30, data.graph.num_edges)
+    ours, gtsam = entry["tools"]["posegraph"], entry["tools"]["gtsam-lm"]
+    assert ours["ok"] and gtsam["ok"], (ours, gtsam)
+    for summary in (ours, gtsam):
+        assert summary["repeats"] == 1
+        assert 0 <= summary["final_cost"] <= summary["initial_cost"]
+        assert summary["iterations"] >= 1
+        phases = summary["seconds"]
+        assert set(phases) == {"read", "initialize", "optimize", "write", "other"}
+        assert all(v >= 0 for v in phases.values())
+        assert sum(phases.values()) == pytest.approx(summary["wall"], rel=1e-6)
+        assert 0.02 < summary["wall"] < 60
+        assert 10 * 2**20 < summary["max_rss"] < 4 * 2**30
+    # Both reach the same optimum on this easy graph (gtsam stops at its looser default tolerance).
+    assert ours["final_cost"] == pytest.approx(gtsam["final_cost"], rel=1e-4)
+    comparison = entry["comparison"]
+    assert comparison["ratio_vs_gtsam-lm"] == pytest.approx(ours["wall"] / gtsam["wall"])
+    assert comparison["gtsam_best_cost"] == gtsam["final_cost"]
+    # Machine description and start-up times.
+    assert result["machine"]["cores"] >= 1 and result["machine"]["numpy"]
+    assert set(result["startup"]) == {"python -c pass", "import posegraph", "cli.py --help"}
+    assert result["startup"]["import posegraph"]["median"] > 0
+    # Markdown: both tables with their columns, one row per tool.
+    for column in harness.SUMMARY_COLUMNS + harness.RUN_COLUMNS:
+        assert column in markdown
+    assert markdown.count("| tiny_sphere |") == 3
+    assert "Traceback" not in done.stdout + done.stderr
+
+
+def test_dataset_discovery(tmp_path):
+    (tmp_path / "a.g2o").write_text("# comment\nVERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n")
+    (tmp_path / "b.g2o").write_text("VERTEX_SE2 0 0 0 0\n")
+    (tmp_path / "c.txt").write_text("EDGE3 0 1 1 0 0 0 0 0 " + " ".join(["1"] * 21) + "\n")
+    (tmp_path / "d.csv").write_text("VERTEX_SE3:QUAT\n")
+    names = [d.name for d in harness.user_datasets([str(tmp_path)])]
+    assert names == ["a", "c"]
+    assert harness.count_graph(tmp_path / "c.txt") == (2, 1)
+    with pytest.raises(FileNotFoundError):
+        harness.user_datasets([str(tmp_path / "missing")])

@@ -1,0 +1,212 @@
+"""Synthetic datasets: determinism, ground truth against the measurements, noise model, outliers, sizes, CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from datasets import synthetic
+from datasets.synthetic import NoiseParams, garage, generate, grid, sphere, torus
+from posegraph.io.g2o import read_g2o
+from posegraph.lie import se3
+from posegraph.solve.residuals import cost, edge_residuals
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLE = ROOT / "datasets" / "example_sphere.g2o"
+# The command in datasets/README.md that made the bundled example.
+EXAMPLE_ARGS = ["sphere", "--size", "225", "--loop-density", "0.5", "--seed", "7"]
+
+SMALL = {
+    "sphere": lambda **kw: sphere(rings=6, nodes_per_ring=7, **kw),
+    "torus": lambda **kw: torus(rings=5, nodes_per_ring=8, **kw),
+    "grid": lambda **kw: grid(4, 3, 3, **kw),
+    "grid-facing": lambda **kw: grid(3, 3, 2, random_orientation=False, **kw),
+    "garage": lambda **kw: garage(floors=3, laps_per_floor=3, nodes_per_lap=12, ramp_nodes=4, **kw),
+}
+
+
+def _is_rigid(poses: np.ndarray) -> bool:
+    rotations = poses[:, :3, :3]
+    orthonormal = np.allclose(rotations @ np.swapaxes(rotations, 1, 2), np.eye(3), atol=1e-12)
+    proper = np.allclose(np.linalg.det(rotations), 1.0, atol=1e-12)
+    bottom = np.array_equal(poses[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (len(poses), 1)))
+    return bool(orthonormal and proper and bottom)
+
+
+@pytest.mark.parametrize("shape", sorted(SMALL))
+def test_noiseless_ground_truth_has_zero_cost(shape):
+    data = SMALL[shape](noise=NoiseParams(noiseless=True))
+    residuals = edge_residuals(data.ground_truth, data.graph)
+    assert np.abs(residuals).max() < 1e-9
+    assert cost(data.graph, data.ground_truth) < 1e-12
+    assert _is_rigid(data.ground_truth)
+    # ...while the composed odometry is the start, and noiseless odometry reproduces the truth.
+    np.testing.assert_allclose(data.graph.poses, data.ground_truth, atol=1e-9)
+
+
+@pytest.mark.parametrize("shape", sorted(SMALL))
+def test_cost_at_ground_truth_follows_the_noise_model(shape):
+    """2·cost(truth) is χ² with 6m degrees of freedom: mean 3m, standard deviation √(3m) for the cost."""
+    data = SMALL[shape](seed=3)
+    m = data.graph.num_edges
+    value = cost(data.graph, data.ground_truth)
+    assert abs(value - 3 * m) < 5 * np.sqrt(3 * m), (value, 3 * m)
+
+
+@pytest.mark.parametrize("shape", sorted(SMALL))
+def test_initial_poses_are_composed_noisy_odometry(shape):
+    data = SMALL[shape](seed=1)
+    graph = data.graph
+    odometry = np.flatnonzero(data.odometry)
+    i, j = graph.edge_from[odometry], graph.edge_to[odometry]
+    assert np.array_equal(j, i + 1) and len(odometry) == graph.num_vertices - 1
+    predicted = se3.compose(graph.poses[i], graph.measurements[odometry])
+    np.testing.assert_allclose(predicted, graph.poses[j], atol=1e-9)
+    np.testing.assert_array_equal(graph.poses[0], data.ground_truth[0])
+    assert _is_rigid(graph.poses)
+    # With noise, the start has drifted away from the truth.
+    assert np.abs(graph.poses[-1, :3, 3] - data.ground_truth[-1, :3, 3]).max() > 1e-3
+
+
+def test_same_seed_gives_identical_files_and_other_seeds_differ(tmp_path):
+    paths = []
+    for name, seed in (("a", 5), ("b", 5), ("c", 6)):
+        data = torus(rings=4, nodes_per_ring=9, noise=NoiseParams(outlier_fraction=0.2), seed=seed)
+        paths.append(synthetic.write_dataset(tmp_path / f"{name}.g2o", data))
+    (a, a_truth), (b, b_truth), (c, _) = paths
+    assert a.read_bytes() == b.read_bytes()
+    assert a_truth.read_bytes() == b_truth.read_bytes()
+    assert a.read_bytes() != c.read_bytes()
+    assert a_truth == tmp_path / "a_groundtruth.g2o"
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.1, 0.25, 0.5])
+def test_outlier_fraction_is_honoured(fraction):
+    data = sphere(rings=8, nodes_per_ring=10, noise=NoiseParams(outlier_fraction=fraction, noiseless=True), seed=2)
+    graph = data.graph
+    loops = ~data.odometry
+    outliers = int(data.outliers.sum())
+    inliers = int(loops.sum()) - outliers
+    assert inliers == (3 * 10 - 1) * 7
+    assert outliers == round(fraction / (1 - fraction) * inliers)
+    assert abs(outliers / loops.sum() - fraction) <= 1 / loops.sum()
+    assert not np.any(data.outliers & data.odometry)
+    # Outliers join non-consecutive vertices and disagree with the truth; inliers agree with it.
+    i, j = graph.edge_from[data.outliers], graph.edge_to[data.outliers]
+    assert np.all(np.abs(j - i) > 1)
+    residual_norm = np.linalg.norm(edge_residuals(data.ground_truth, graph), axis=1)
+    assert np.all(residual_norm[~data.outliers] < 1e-9)
+    assert np.all(residual_norm[data.outliers] > 1e-3)
+
+
+@pytest.mark.parametrize("density", [0.0, 0.3, 1.0])
+def test_loop_closure_density(density):
+    data = torus(rings=4, nodes_per_ring=10, noise=NoiseParams(loop_closure_density=density))
+    assert data.num_loop_closures == round(density * (3 * 10 * 4 - 3))
+    assert data.graph.num_edges == 39 + data.num_loop_closures
+
+
+def test_sizes_and_topology():
+    s = sphere(rings=5, nodes_per_ring=6)
+    assert (s.graph.num_vertices, s.graph.num_edges) == (30, 29 + (3 * 6 - 1) * 4)  # seam pairs are odometry
+    t = torus(rings=5, nodes_per_ring=6)
+    assert (t.graph.num_vertices, t.graph.num_edges) == (30, 29 + 3 * 6 * 5 - 4)  # the tube is closed
+    g = grid(4, 3, 2)
+    neighbour_pairs = 3 * 3 * 2 + 4 * 2 * 2 + 4 * 3 * 1
+    assert (g.graph.num_vertices, g.graph.num_edges) == (24, neighbour_pairs)
+    c = garage(floors=3, laps_per_floor=2, nodes_per_lap=10, ramp_nodes=4)
+    assert c.graph.num_vertices == 3 * 2 * 10 + 2 * 4
+    assert c.num_loop_closures == 3 * 1 * (3 * 10 - 1)  # less each lap seam's odometry pair
+    for data in (s, t, g, c):
+        graph = data.graph
+        assert np.array_equal(graph.ids, np.arange(graph.num_vertices))
+        assert np.all(graph.edge_from != graph.edge_to)
+        pairs = set(zip(graph.edge_from.tolist(), graph.edge_to.tolist()))
+        assert len(pairs) == graph.num_edges  # no duplicates without outliers
+        # Front-end order: sorted by the newer vertex.
+        newer = np.maximum(graph.edge_from, graph.edge_to)
+        assert np.all(np.diff(newer) >= 0)
+        information = graph.information
+        assert np.allclose(information, np.swapaxes(information, 1, 2)) and np.all(np.linalg.eigvalsh(information) > 0)
+
+
+def test_shapes_have_the_documented_geometry():
+    s = sphere(rings=4, nodes_per_ring=8, radius=10.0)
+    np.testing.assert_allclose(np.linalg.norm(s.ground_truth[:, :3, 3], axis=1), 10.0)
+    g = grid(3, 4, 2, spacing=2.0, noise=NoiseParams(noiseless=True))
+    loops = ~g.odometry
+    step = g.ground_truth[g.graph.edge_to, :3, 3] - g.ground_truth[g.graph.edge_from, :3, 3]
+    np.testing.assert_allclose(np.linalg.norm(step, axis=1), 2.0)  # every edge joins lattice neighbours
+    assert loops.any()
+    t = torus(rings=6, nodes_per_ring=12, major_radius=10.0, minor_radius=3.0)
+    xyz = t.ground_truth[:, :3, 3]
+    distance_to_core = np.hypot(np.hypot(xyz[:, 0], xyz[:, 1]) - 10.0, xyz[:, 2])
+    np.testing.assert_allclose(distance_to_core, 3.0)
+    c = garage(floors=3, laps_per_floor=2, nodes_per_lap=20, floor_height=2.5, ramp_nodes=5)
+    heights = np.unique(np.round(c.ground_truth[:, 2, 3], 9))
+    assert {0.0, 2.5, 5.0} <= set(heights.tolist())
+    assert c.ground_truth[:, 2, 3].max() == pytest.approx(5.0)
+
+
+def test_generate_by_size_and_bad_parameters():
+    assert abs(generate("sphere", 2500).graph.num_vertices - 2500) == 0
+    for shape in synthetic.SHAPES:
+        n = generate(shape, 1000).graph.num_vertices
+        assert 0.85 * 1000 <= n <= 1.15 * 1000, (shape, n)
+    with pytest.raises(ValueError, match="unknown shape"):
+        generate("cylinder", 100)
+    with pytest.raises(ValueError, match="outlier_fraction"):
+        NoiseParams(outlier_fraction=1.0)
+    with pytest.raises(ValueError, match="odometry_rotation_sigma"):
+        NoiseParams(odometry_rotation_sigma=0.0)
+    with pytest.raises(ValueError, match="rings"):
+        sphere(rings=0)
+
+
+def test_files_read_back_with_the_ground_truth(tmp_path):
+    data = garage(floors=2, laps_per_floor=2, nodes_per_lap=8, ramp_nodes=3, seed=4)
+    path, truth_path = synthetic.write_dataset(tmp_path / "g.g2o", data)
+    graph, truth = read_g2o(path), read_g2o(truth_path)
+    assert (graph.num_vertices, graph.num_edges) == (data.graph.num_vertices, data.graph.num_edges)
+    np.testing.assert_allclose(graph.poses, data.graph.poses, atol=1e-12)
+    np.testing.assert_allclose(truth.poses, data.ground_truth, atol=1e-12)
+    np.testing.assert_allclose(graph.measurements, truth.measurements, atol=0)
+    assert cost(truth) == pytest.approx(cost(data.graph, data.ground_truth), rel=1e-9)
+
+
+def _cli(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, "-m", "datasets.synthetic", *args], cwd=cwd, capture_output=True, text=True, timeout=120)
+
+
+def test_cli_writes_graph_and_ground_truth(tmp_path):
+    out = tmp_path / "s.g2o"
+    done = _cli("grid", "--size", "30", "--outliers", "0.2", "--seed", "1", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert out.is_file() and (tmp_path / "s_groundtruth.g2o").is_file()
+    assert "outliers" in done.stdout
+    expected = generate("grid", 30, noise=NoiseParams(outlier_fraction=0.2), seed=1).graph
+    assert read_g2o(out).num_edges == expected.num_edges
+
+
+def test_cli_refuses_bad_input_without_traceback_or_files(tmp_path):
+    bad = _cli("sphere", "--outliers", "1.5", "-o", str(tmp_path / "x.g2o"))
+    assert bad.returncode == 2 and "outlier_fraction" in bad.stderr and "Traceback" not in bad.stderr
+    missing = _cli("sphere", "--size", "20", "-o", str(tmp_path / "no" / "x.g2o"))
+    assert missing.returncode == 1 and "does not exist" in missing.stderr and "Traceback" not in missing.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bundled_example_is_what_the_documented_command_makes(tmp_path):
+    if not EXAMPLE.is_file():
+        pytest.fail(f"{EXAMPLE} is missing")
+    out = tmp_path / "example_sphere.g2o"
+    done = _cli(*EXAMPLE_ARGS, "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert out.read_bytes() == EXAMPLE.read_bytes()
+    assert (tmp_path / "example_sphere_groundtruth.g2o").read_bytes() == synthetic.groundtruth_path(EXAMPLE).read_bytes()
+    assert EXAMPLE.stat().st_size < 300_000
+    assert 200 <= read_g2o(EXAMPLE).num_vertices <= 400

@@ -1,0 +1,56 @@
+"""verify-jacobians logic: passes on the real core, and catches a planted mistake."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posegraph.verify import (
+    CLOSED_FORM_TOLERANCE,
+    FINITE_DIFFERENCE_TOLERANCE,
+    GTSAM_NEAR_PI_TOLERANCE,
+    format_checks,
+    verify_all,
+)
+
+
+def test_every_check_passes_and_covers_the_hard_cases():
+    pytest.importorskip("gtsam")
+    checks = verify_all(samples=40, seed=1)
+    failed = [c.name for c in checks if not c.passed]
+    assert not failed, format_checks(checks)
+    families = {c.cases for c in checks}
+    assert {"random", "near 0", "near π"} <= families
+    references = {c.reference for c in checks}
+    assert "finite differences" in references and any(r.startswith("gtsam") for r in references)
+    assert {c.tolerance for c in checks} == {CLOSED_FORM_TOLERANCE, FINITE_DIFFERENCE_TOLERANCE, GTSAM_NEAR_PI_TOLERANCE}
+    # The looser gtsam tolerance applies only near π, where gtsam itself is the less accurate side.
+    assert all(c.tolerance == CLOSED_FORM_TOLERANCE for c in checks
+               if c.reference.startswith("gtsam") and c.cases != "near π")
+
+
+def test_without_gtsam_finite_differences_still_run():
+    checks = verify_all(samples=20, use_gtsam=False)
+    assert checks and all(not c.reference.startswith("gtsam") for c in checks)
+    assert all(c.passed for c in checks), format_checks(checks)
+
+
+def test_a_transposed_jacobian_is_caught(monkeypatch):
+    from posegraph.lie import se3
+
+    real = se3.right_jacobian_inverse
+    monkeypatch.setattr(se3, "right_jacobian_inverse", lambda xi: np.swapaxes(real(xi), -1, -2))
+    checks = verify_all(samples=20, use_gtsam=False)
+    failed = {c.quantity for c in checks if not c.passed}
+    assert "se3.right_jacobian_inverse" in failed
+    assert "edge Jacobian ∂e/∂δj" in failed
+    assert "FAIL" in format_checks(checks)
+
+
+def test_a_wrong_small_angle_branch_is_caught(monkeypatch):
+    """Jl in place of Jr (they differ in the sign of the odd-order terms) is caught."""
+    from posegraph.lie import so3
+
+    monkeypatch.setattr(so3, "right_jacobian", so3.left_jacobian)
+    checks = verify_all(samples=20, use_gtsam=False)
+    assert any(c.quantity == "so3.right_jacobian" and not c.passed for c in checks)
