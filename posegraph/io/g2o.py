@@ -344,45 +344,59 @@ def _parse_records(
 ) -> tuple[np.ndarray, G2oFormatError | None]:
     """Parse all lines of one tag with one call to numpy's C parser.
 
-    Only when that fails (or drops a line) are the lines scanned one by one to
-    name the offending line and field.
+    Only when that fails is the first offending line searched for, by bisection
+    (about two more parses of the group), and its fields examined one by one.
     """
     if not lines.rests:
         return np.zeros(0, dtype=dtype), None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "input contained no data" when every line is empty
-            records = np.loadtxt(lines.rests, dtype=dtype, comments=None, ndmin=1)
-        if records.shape == (len(lines.rests),):
-            return records, None
-        reason = "numpy's parser skipped a line"
-    except ValueError as err:
-        reason = str(err)
-    error = _scan_for_bad_line(lines, tag, fields, n_ints, path)
-    if error is None:  # the per-line scan disagrees with numpy: report what numpy said
-        error = G2oFormatError(f"{tag} lines could not be parsed: {reason}", path)
+    records, reason = _load(lines.rests, dtype)
+    if records is not None:
+        return records, None
+    lo, hi = 0, len(lines.rests)  # lines [0, lo) parse; the first bad line is in [lo, hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _load(lines.rests[lo:mid], dtype)[0] is not None:
+            lo = mid
+        else:
+            hi = mid
+    number = int(lines.numbers[lo])
+    error = _diagnose_line(lines.rests[lo], number, tag, fields, n_ints, path)
+    if error is None:  # the token checks disagree with numpy: report what numpy said
+        error = G2oFormatError(f"{tag} line could not be parsed: {reason}", path, number)
     return np.zeros(0, dtype=dtype), error
 
 
-def _scan_for_bad_line(
-    lines: _Lines, tag: str, fields: tuple[str, ...], n_ints: int, path: str
+def _load(rests: list[str], dtype: np.dtype) -> tuple[np.ndarray | None, str]:
+    """``(records, "")`` if every line parses into one record, else ``(None, reason)``."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data" when every line is empty
+            records = np.loadtxt(rests, dtype=dtype, comments=None, ndmin=1)
+    except ValueError as err:
+        return None, str(err)
+    if records.shape != (len(rests),):  # numpy skips blank lines: a tag without fields
+        return None, "a line has no fields"
+    return records, ""
+
+
+def _diagnose_line(
+    rest: str, number: int, tag: str, fields: tuple[str, ...], n_ints: int, path: str
 ) -> G2oFormatError | None:
-    for number, rest in zip(lines.numbers.tolist(), lines.rests):
-        tokens = rest.split()
-        if len(tokens) != len(fields):
-            return G2oFormatError(
-                f"{tag} needs {len(fields)} fields after the tag ({_describe_fields(fields)}), found {len(tokens)}",
-                path,
-                number,
-            )
-        for k, token in enumerate(tokens):
-            if k < n_ints:
-                if not _is_integer(token):
-                    return G2oFormatError(
-                        f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not an integer id", path, number
-                    )
-            elif not _is_number(token):
-                return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not a number", path, number)
+    """The problem with one line's fields (count, then each field's syntax)."""
+    tokens = rest.split()
+    if len(tokens) != len(fields):
+        return G2oFormatError(
+            f"{tag} needs {len(fields)} fields after the tag ({_describe_fields(fields)}), found {len(tokens)}",
+            path,
+            number,
+        )
+    for k, token in enumerate(tokens):
+        if k < n_ints:
+            if not _is_integer(token):
+                reason = f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not an integer id"
+                return G2oFormatError(reason, path, number)
+        elif not _is_number(token):
+            return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not a number", path, number)
     return None
 
 

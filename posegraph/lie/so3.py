@@ -63,26 +63,32 @@ __all__ = [
 
 # Below this angle the coefficients are Taylor polynomials, above it closed forms.  The closed forms
 # of C, D and of the derivatives subtract nearly equal O(1) numbers: they lose ~eps/θ² (C, D) to
-# ~eps/θ⁴ (dD) relative, i.e. 1e-14 … 1e-10 at θ = 0.1.  At θ = 1 the worst of them (dD) is still
-# within 1e-16 absolute, and ten terms of each series are within 2e-17 of the 50-digit value
-# (the least well-converging one, D, has radius of convergence 2π).  See docs/lie.md.
+# ~eps/θ⁴ (dC, dD) relative, i.e. 1e-14 … 1e-9 at θ = 0.1.  At θ = 1 the worst of them (dD) is
+# still within 1e-16 absolute, and ten terms of each series are within 2e-17 of the 50-digit value
+# (the slowest to converge, D and E, have radius 2π).  See docs/lie.md.
 _SERIES_ANGLE = 1.0
 _SERIES_TERMS = 10
 
-# Bernoulli numbers B₂, B₄, … for (x/2) cot(x/2) = Σₙ (−1)ⁿ B₂ₙ xⁿ²/(2n)!.
+# Bernoulli numbers B₂, B₄, … for (x/2) cot(x/2) = Σₙ (−1)ⁿ B₂ₙ x²ⁿ/(2n)!.
 _BERNOULLI_EVEN = [Fraction(1, 6), Fraction(-1, 30), Fraction(1, 42), Fraction(-1, 30), Fraction(5, 66),
                    Fraction(-691, 2730), Fraction(7, 6), Fraction(-3617, 510), Fraction(43867, 798),
                    Fraction(-174611, 330), Fraction(854513, 138)]
 
 
-def _taylor(first_power_factorial: int, n: int) -> list[Fraction]:
-    """Coefficients of Σₖ (−1)ᵏ θ²ᵏ / (2k + m)!  (m = 1: A, 2: B, 3: C)."""
-    return [Fraction((-1) ** k, math.factorial(2 * k + first_power_factorial)) for k in range(n)]
+def _taylor(m: int, n: int) -> list[Fraction]:
+    """First n coefficients of Σₖ (−1)ᵏ θ²ᵏ / (2k + m)!  (m = 1: A, 2: B, 3: C)."""
+    return [Fraction((-1) ** k, math.factorial(2 * k + m)) for k in range(n)]
 
 
-def _cot_series(n: int) -> list[Fraction]:
-    """D = (1 − (θ/2)cot(θ/2))/θ² = Σₖ (−1)ᵏ B₂ₖ₊₂ θ²ᵏ / (2k + 2)!."""
-    return [(-1) ** k * _BERNOULLI_EVEN[k] / math.factorial(2 * k + 2) for k in range(n)]
+def _half_cot_series(n: int) -> list[Fraction]:
+    """E = (θ/2) cot(θ/2) = Σₖ (−1)ᵏ B₂ₖ θ²ᵏ / (2k)!  (B₀ = 1)."""
+    bernoulli = [Fraction(1)] + _BERNOULLI_EVEN
+    return [(-1) ** k * bernoulli[k] / math.factorial(2 * k) for k in range(n)]
+
+
+def _d_series(n: int) -> list[Fraction]:
+    """D = (1 − E)/θ²: minus the series of E shifted by one power of θ²."""
+    return [-c for c in _half_cot_series(n + 1)[1:]]
 
 
 def _derivative_over_theta(coefficients: list[Fraction]) -> list[Fraction]:
@@ -94,10 +100,12 @@ _N = _SERIES_TERMS + 1  # one more, for the derivative series
 _A_SERIES = tuple(map(float, _taylor(1, _N)[:_SERIES_TERMS]))
 _B_SERIES = tuple(map(float, _taylor(2, _N)[:_SERIES_TERMS]))
 _C_SERIES = tuple(map(float, _taylor(3, _N)[:_SERIES_TERMS]))
-_D_SERIES = tuple(map(float, _cot_series(_N)[:_SERIES_TERMS]))
+_D_SERIES = tuple(map(float, _d_series(_N)[:_SERIES_TERMS]))
+_E_SERIES = tuple(map(float, _half_cot_series(_SERIES_TERMS)))
 _DB_SERIES = tuple(map(float, _derivative_over_theta(_taylor(2, _N))))  # (dB/dθ)/θ
 _DC_SERIES = tuple(map(float, _derivative_over_theta(_taylor(3, _N))))  # (dC/dθ)/θ
-_DD_SERIES = tuple(map(float, _derivative_over_theta(_cot_series(_N))))  # (dD/dθ)/θ
+_DD_SERIES = tuple(map(float, _derivative_over_theta(_d_series(_N))))  # (dD/dθ)/θ
+_DE_SERIES = tuple(map(float, _derivative_over_theta(_half_cot_series(_N))))  # (dE/dθ)/θ
 
 
 def _polynomial(theta_sq: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
@@ -112,16 +120,22 @@ def _polynomial(theta_sq: np.ndarray, coefficients: tuple[float, ...]) -> np.nda
 def _piecewise(theta: np.ndarray, series: list[tuple[float, ...]], closed) -> list[np.ndarray]:
     """Evaluate several coefficients: Taylor polynomials below ``_SERIES_ANGLE``, ``closed`` above.
 
-    ``theta`` is 1-D.  ``closed(theta_large)`` returns one array per coefficient and is called only
-    on the elements at or above the threshold (so it never sees θ = 0, and is skipped entirely
-    when a batch of small residuals has none).
+    ``theta`` is 1-D.  Each branch only sees its own elements (so ``closed`` never sees θ = 0), and
+    a batch entirely on one side — small residuals, say — costs one branch only.
     """
-    theta_sq = theta * theta
-    out = [_polynomial(theta_sq, s) for s in series]
-    large = np.flatnonzero(theta >= _SERIES_ANGLE)
-    if large.size:
-        for o, value in zip(out, closed(theta[large])):
-            o[large] = value
+    small = theta < _SERIES_ANGLE
+    if small.all():
+        theta_sq = theta * theta
+        return [_polynomial(theta_sq, s) for s in series]
+    if not small.any():
+        return list(closed(theta))
+    out = [np.empty_like(theta) for _ in series]
+    theta_small = theta[small]
+    theta_sq = theta_small * theta_small
+    large = ~small
+    for o, s, value in zip(out, series, closed(theta[large])):
+        o[small] = _polynomial(theta_sq, s)
+        o[large] = value
     return out
 
 
@@ -163,9 +177,9 @@ def _jacobian_coefficients(theta: np.ndarray):
 def _inverse_jacobian_coefficients(theta: np.ndarray, derivatives: bool = False):
     """``(E, D)`` or, with ``derivatives``, ``(E, D, dE, dD)``; ``theta`` is 1-D.
 
-    ``E = (θ/2)cot(θ/2) = 1 − θ² D``; ``dD = (dD/dθ)/θ = (C/(2B) − 2D)/θ²`` and
-    ``dE = (dE/dθ)/θ = −2D − θ² dD`` (which equals ``−C/(2B)``).  None divides by ``sin θ``: all
-    stay accurate through ``θ = π`` and are singular only at ``θ = 2π``.
+    ``E = (θ/2)cot(θ/2)``, ``D = (1 − E)/θ²``, ``dE = (dE/dθ)/θ = −C/(2B)`` and
+    ``dD = (dD/dθ)/θ = (C/(2B) − 2D)/θ²``.  None divides by ``sin θ``: all stay accurate
+    through ``θ = π`` and are singular only at ``θ = 2π``.
     """
 
     def closed(t):
@@ -173,30 +187,29 @@ def _inverse_jacobian_coefficients(theta: np.ndarray, derivatives: bool = False)
         t_sq = t * t
         e = 0.5 * t * cos_half / sin_half
         d = (1.0 - e) / t_sq
-        c_over_2b = (t - sin) / (2.0 * t * one_minus_cos)
-        return d, (c_over_2b - 2.0 * d) / t_sq
+        if not derivatives:
+            return e, d
+        de = -(t - sin) / (2.0 * t * one_minus_cos)  # −C/(2B)
+        return e, d, de, (-de - 2.0 * d) / t_sq
 
-    series = [_D_SERIES, _DD_SERIES] if derivatives else [_D_SERIES]
-    if derivatives:
-        d, dd = _piecewise(theta, series, closed)
-    else:
-        (d,) = _piecewise(theta, series, lambda t: closed(t)[:1])
-    theta_sq = theta * theta
-    e = 1.0 - theta_sq * d
-    if not derivatives:
-        return e, d
-    return e, d, -2.0 * d - theta_sq * dd, dd
+    series = [_E_SERIES, _D_SERIES] + ([_DE_SERIES, _DD_SERIES] if derivatives else [])
+    return _piecewise(theta, series, closed)
 
 
 # ---------------------------------------------------------------------------------------------
 # Batched arrays as lists of components
 #
 # Inputs are split once into contiguous 1-D component arrays over the flattened batch; each entry of
-# an output matrix is a few elementwise operations on those, written straight into the one output
-# array.  For large batches this is several times faster than stacks of small matmuls or einsum, and
-# it allocates a single output-sized block (a second one, e.g. a transposed copy, costs page faults
-# that dominate everything else).
+# an output matrix is a few elementwise operations on those.  For large batches this is several
+# times faster than stacks of small matmuls or einsum chains.  How the entries reach the output
+# depends on size: while the output fits in cache, each entry is written straight into it (one
+# allocation); beyond that, strided writes would stream the whole output through memory once per
+# entry, so the entries go into a component-major buffer, transposed in one pass.
 # ---------------------------------------------------------------------------------------------
+
+# Output bytes above which the component-major buffer pays off (measured: direct writes win at
+# 9k 6×6 matrices = 2.6 MB, the buffer at 100k = 29 MB; see docs/lie.md).
+_DIRECT_WRITE_BYTES = 4 * 2**20
 
 
 def _as_float(x) -> np.ndarray:
@@ -221,11 +234,18 @@ def _components(x, shape: tuple[int, ...], name: str):
 def _from_entries(entries, batch: tuple[int, ...]) -> np.ndarray:
     """``(*batch, rows, cols)`` matrix from nested lists of 1-D arrays (or scalars), one per entry."""
     rows, cols = len(entries), len(entries[0])
-    out = np.empty((math.prod(batch), rows, cols), dtype=np.float64)
+    n = math.prod(batch)
+    if n * rows * cols * 8 <= _DIRECT_WRITE_BYTES:
+        out = np.empty((n, rows, cols), dtype=np.float64)
+        for i, row in enumerate(entries):
+            for j, value in enumerate(row):
+                out[:, i, j] = value
+        return out.reshape(batch + (rows, cols))
+    buffer = np.empty((rows, cols, n), dtype=np.float64)
     for i, row in enumerate(entries):
         for j, value in enumerate(row):
-            out[:, i, j] = value
-    return out.reshape(batch + (rows, cols))
+            buffer[i, j] = value
+    return np.ascontiguousarray(buffer.transpose(2, 0, 1)).reshape(batch + (rows, cols))
 
 
 def _from_vector(components, batch: tuple[int, ...]) -> np.ndarray:

@@ -213,6 +213,16 @@ def test_the_first_problem_in_the_file_is_reported(text_file):
     check(text_file, text, G2oFormatError, 3, "found 29")
 
 
+@pytest.mark.parametrize("first_bad", [1, 2, 511, 512, 777, 1000])
+def test_first_bad_line_of_a_large_group_is_found(text_file, first_bad):
+    # The reader parses a tag's lines in one call, then bisects for the first bad line.
+    body = [vertex(k) for k in range(1000)]
+    body[first_bad - 1] = vertex(first_bad - 1, "0 0 0 0 0 0 1.5.3")
+    if first_bad < 1000:
+        body[999] = vertex(999, "0 0 0 0 0 1")  # a later problem of another kind
+    check(text_file, lines(*body, edge(0, 1)), G2oFormatError, first_bad, "'1.5.3'", "not a number")
+
+
 def test_format_problems_come_before_graph_problems(text_file):
     text = lines(vertex(0), vertex(0), edge(0, 0), vertex(2, "0 0 0 0 0 0"))
     check(text_file, text, G2oFormatError, 4, "found 7")

@@ -67,3 +67,39 @@ def test_left_jacobians_follow_from_the_right_ones_at_near_pi():
     xi = _tangents_at(np.pi - 1e-6, seed=3)
     _compare(se3.left_jacobian(xi), ref.se3_right_jacobian, -xi, 1e-14)
     _compare(se3.left_jacobian_inverse(xi), ref.se3_right_jacobian_inverse, -xi, 2e-14)
+
+
+def test_scalar_coefficients_on_both_sides_of_the_series_threshold():
+    """A … E and their derivatives (over θ) against 60-digit values, across [1e-12, π].
+
+    Relative bounds: a few ulps for everything, except the closed forms of C'/θ and D'/θ just above
+    the threshold, which cancel to ~eps/θ⁴ (≤ 5e-14 relative, ~1e-16 absolute; see docs/lie.md).
+    """
+    mp = pytest.importorskip("mpmath")
+    from posegraph.lie.so3 import _inverse_jacobian_coefficients, _jacobian_coefficients
+
+    functions = {
+        "A": lambda x: mp.sin(x) / x,
+        "B": lambda x: (1 - mp.cos(x)) / x**2,
+        "C": lambda x: (x - mp.sin(x)) / x**3,
+        "E": lambda x: (x / 2) * mp.cot(x / 2),
+        "D": lambda x: (1 - (x / 2) * mp.cot(x / 2)) / x**2,
+    }
+    loose = {"dC": 1e-13, "dD": 1e-13}
+    grid = np.array([1e-12, 1e-6, 1e-3, 0.1, 0.5, 0.9, 1 - 1e-9, 1.0, 1 + 1e-9, 1.2, 2.0, 3.0, np.pi - 1e-6])
+    a, b, c, da, db, dc = _jacobian_coefficients(grid)
+    e, d, de, dd = _inverse_jacobian_coefficients(grid, derivatives=True)
+    ours = {"A": a, "B": b, "C": c, "dA": da, "dB": db, "dC": dc, "E": e, "D": d, "dE": de, "dD": dd}
+    with mp.workdps(60):
+        for i, theta in enumerate(grid):
+            t = mp.mpf(theta)
+            for name, value in ours.items():
+                f = functions[name.lstrip("d")]
+                exact = mp.diff(f, t) / t if name.startswith("d") else f(t)
+                rel = abs(float((mp.mpf(value[i]) - exact) / exact))
+                assert rel <= loose.get(name, 2e-15), f"{name}(θ = {theta!r}) off by {rel:.1e} relative"
+    # at θ = π, E = (π/2) cot(π/2) is tiny: it must not come from 1 − θ² D (which would leave ~1e-16)
+    e_pi, _ = _inverse_jacobian_coefficients(np.array([np.pi]))
+    with mp.workdps(60):
+        exact = (mp.mpf(np.pi) / 2) * mp.cot(mp.mpf(np.pi) / 2)
+    assert abs(float(mp.mpf(e_pi[0]) - exact)) <= 1e-31

@@ -181,30 +181,33 @@ def _right_perturbed(T, delta):
     return se3.compose(T[..., None, :, :], se3.exp(delta))
 
 
+def _minus(Y, Y0):
+    """Y ⊖ Y0 = Log(Y0⁻¹ Y), with Y0 broadcast over Y's perturbation axis."""
+    return se3.log(se3.between(Y0[:, None], Y))
+
+
 @pytest.mark.parametrize("angle", EDGE_ANGLES)
 def test_compose_inverse_between_jacobians_by_finite_differences(angle):
-    rng = np.random.default_rng(5)
     a = se3.exp(at_angle(angle, n=6, seed=1))
     b = se3.exp(at_angle(angle, n=6, seed=2))
     zero = np.zeros((6, 6))
-    ab, ab_inv = se3.compose(a, b), se3.inverse(se3.compose(a, b))[:, None]
+    A, B = a[:, None], b[:, None]  # broadcast against the perturbation axis
 
-    def minus(Y, Y0_inv):  # Y ⊖ Y0 = Log(Y0⁻¹ Y)
-        return se3.log(se3.compose(Y0_inv, Y))
+    def fd(f, base):
+        return central_difference(lambda d: _minus(f(d), base), zero)
 
     J_a, J_b = se3.compose_jacobians(a, b)
-    np.testing.assert_allclose(J_a, central_difference(lambda d: minus(se3.compose(_right_perturbed(a, d), b[:, None]), ab_inv), zero), atol=2e-8)
-    np.testing.assert_allclose(J_b, central_difference(lambda d: minus(se3.compose(a[:, None], _right_perturbed(b, d)), ab_inv), zero), atol=2e-8)
+    ab = se3.compose(a, b)
+    np.testing.assert_allclose(J_a, fd(lambda d: se3.compose(_right_perturbed(a, d), B), ab), atol=2e-8)
+    np.testing.assert_allclose(J_b, fd(lambda d: se3.compose(A, _right_perturbed(b, d)), ab), atol=2e-8)
 
-    a_inv_inv = a[:, None]  # (a⁻¹)⁻¹
     J_inv = se3.inverse_jacobian(a)
-    np.testing.assert_allclose(J_inv, central_difference(lambda d: minus(se3.inverse(_right_perturbed(a, d)), a_inv_inv), zero), atol=2e-8)
+    np.testing.assert_allclose(J_inv, fd(lambda d: se3.inverse(_right_perturbed(a, d)), se3.inverse(a)), atol=2e-8)
 
-    between_inv = se3.inverse(se3.between(a, b))[:, None]
     J_a, J_b = se3.between_jacobians(a, b)
-    np.testing.assert_allclose(J_a, central_difference(lambda d: minus(se3.between(_right_perturbed(a, d), b[:, None]), between_inv), zero), atol=2e-8)
-    np.testing.assert_allclose(J_b, central_difference(lambda d: minus(se3.between(a[:, None], _right_perturbed(b, d)), between_inv), zero), atol=2e-8)
-    del rng, ab
+    a_to_b = se3.between(a, b)
+    np.testing.assert_allclose(J_a, fd(lambda d: se3.between(_right_perturbed(a, d), B), a_to_b), atol=2e-8)
+    np.testing.assert_allclose(J_b, fd(lambda d: se3.between(A, _right_perturbed(b, d)), a_to_b), atol=2e-8)
 
 
 @pytest.mark.parametrize("angle", EDGE_ANGLES)
@@ -294,3 +297,27 @@ def test_group_axioms(x, y, z, p):
     np.testing.assert_allclose(se3.exp(se3.log(se3.compose(a, b))), se3.compose(a, b), atol=1e-12)
     # one-parameter subgroup: Exp(sξ) Exp(tξ) = Exp((s + t)ξ)
     np.testing.assert_allclose(se3.compose(se3.exp(0.3 * x), se3.exp(0.7 * x)), a, atol=1e-12)
+
+
+@pytest.mark.parametrize("shape", BATCH_SHAPES)
+def test_large_batch_layout_gives_identical_results(shape, monkeypatch):
+    # Outputs above so3._DIRECT_WRITE_BYTES are assembled through a component-major buffer; force
+    # that path on small inputs and compare bit for bit with the direct one.
+    rng = np.random.default_rng(9)
+    xi = tangents(rng, shape)
+    T, U = se3.exp(xi), poses(rng, shape)
+    p = rng.normal(size=shape + (3,))
+    calls = {
+        "exp": lambda: se3.exp(xi),
+        "Jr": lambda: se3.right_jacobian(xi),
+        "Jr_inv": lambda: se3.right_jacobian_inverse(xi),
+        "Ad": lambda: se3.adjoint(T),
+        "between": lambda: se3.between(T, U),
+        "act_J": lambda: se3.act_jacobians(T, p)[0],
+        "so3_exp": lambda: so3.exp(xi[..., :3]),
+        "quaternion": lambda: so3.from_quaternion(so3.to_quaternion(T[..., :3, :3])),
+    }
+    direct = {k: f() for k, f in calls.items()}
+    monkeypatch.setattr(so3, "_DIRECT_WRITE_BYTES", 0)
+    for k, f in calls.items():
+        np.testing.assert_array_equal(f(), direct[k], err_msg=k)
