@@ -2,6 +2,7 @@
 
     python -m benchmarks.bench_init                         # sphere2500, torus3D, smallGrid3D, parking-garage
     python -m benchmarks.bench_init --repeat 9 --optimize   # also solve from each start
+    python -m benchmarks.bench_init --weights               # start cost under other rotation weights
     python -m benchmarks.bench_init path/to/other.g2o
 
 For each file the initialisers run alternately, ``--repeat`` times each (after one untimed warm-up
@@ -11,7 +12,10 @@ file, a prior σ = 1e-6 on the first pose, ``InitializePose3.initialize`` (chord
 one Gauss-Newton iteration on the full poses); its cost is ``graph.error`` *without* the prior.
 Costs are ½ Σ eᵀΩe of the start (``posegraph.solve.residuals.cost``, equal to gtsam's error).
 With ``--optimize`` Levenberg-Marquardt runs from our chordal start and from gtsam's and the final
-costs are printed next to the reference optimum. Figures are recorded in docs/initialisation.md.
+costs are printed next to the reference optimum. With ``--weights`` the chordal start's cost is
+also printed for other scalar rotation weights than ours (``tr(Ω_ωω)/3``): the smallest eigenvalue
+of ``Ω_ωω``, ``3/tr(Ω_ωω⁻¹)``, 1 for every edge, and gtsam's ``√Ω[0,0]``. Figures are recorded in
+docs/initialisation.md.
 """
 
 from __future__ import annotations
@@ -26,7 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from posegraph.errors import InputError, InputWarning
-from posegraph.init import chordal_initialization, odometry_initialization
+from posegraph.graph import PoseGraph
+from posegraph.init import (
+    chordal_initialization,
+    chordal_rotations,
+    odometry_initialization,
+    translations_given_rotations,
+)
 from posegraph.io.g2o import read_g2o
 from posegraph.solve import SolverParams, optimize
 from posegraph.solve.residuals import cost
@@ -58,7 +68,34 @@ def _gtsam_initializer(gtsam, path: Path):
     return (lambda: gtsam.InitializePose3.initialize(with_prior)), factors
 
 
-def bench_file(path: Path, repeat: int, gtsam, solve: bool) -> None:
+ROTATION_WEIGHTS = {
+    "tr(Ω_ωω)/3 (ours)": lambda block: np.trace(block, axis1=1, axis2=2) / 3,
+    "λ_min(Ω_ωω)": lambda block: np.linalg.eigvalsh(block)[:, 0],
+    "3/tr(Ω_ωω⁻¹)": lambda block: 3 / np.trace(np.linalg.inv(block), axis1=1, axis2=2),
+    "1": lambda block: np.ones(block.shape[0]),
+    "√Ω[0,0] (gtsam)": lambda block: np.sqrt(block[:, 0, 0]),
+}
+
+
+def start_cost_with_rotation_weight(graph: PoseGraph, weight) -> float:
+    """Chordal start cost when the rotation stage weighs edges by ``weight(Ω_ωω)`` instead.
+
+    The rotation stage sees only ``tr(Ω_ωω)/3``, so it is run on a copy whose ``Ω_ωω`` is
+    ``weight · I``; the translations then use the real information, as always.
+    """
+    information = graph.information.copy()
+    information[:, :3, :3] = weight(graph.information[:, :3, :3])[:, None, None] * np.eye(3)
+    proxy = PoseGraph(graph.ids, graph.poses, graph.edge_from, graph.edge_to, graph.measurements, information,
+                      graph.fixed)
+    rotations = chordal_rotations(proxy)
+    poses = np.zeros_like(graph.poses)
+    poses[:, :3, :3] = rotations
+    poses[:, :3, 3] = translations_given_rotations(graph, rotations)
+    poses[:, 3, 3] = 1.0
+    return cost(graph, poses)
+
+
+def bench_file(path: Path, repeat: int, gtsam, solve: bool, weights: bool = False) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
         try:
@@ -101,6 +138,11 @@ def bench_file(path: Path, repeat: int, gtsam, solve: bool) -> None:
         else:
             print(f"  {name:28s} {costs[name]:14.7e}")
 
+    if weights:
+        print("  chordal start cost by rotation weight:")
+        for name, weight in ROTATION_WEIGHTS.items():
+            print(f"    {name:20s} {start_cost_with_rotation_weight(graph, weight):14.7e}")
+
     if solve:
         reference = REFERENCE_OPTIMUM.get(path.stem)
         params = SolverParams(method="lm")
@@ -123,6 +165,7 @@ def main(argv=None) -> int:
     parser.add_argument("files", nargs="*", type=Path, help="g2o files (default: the shared benchmark graphs)")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs of each initialiser (default 5)")
     parser.add_argument("--optimize", action="store_true", help="also run LM from our start and from gtsam's")
+    parser.add_argument("--weights", action="store_true", help="also compare scalar rotation weights")
     args = parser.parse_args(argv)
     files = args.files or [SHARED / name for name in DEFAULT_FILES]
     try:
@@ -135,7 +178,7 @@ def main(argv=None) -> int:
         if not path.is_file():
             print(f"{path}: skipped, no such file")
             continue
-        bench_file(path, args.repeat, gtsam, args.optimize)
+        bench_file(path, args.repeat, gtsam, args.optimize, args.weights)
     return 0
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["PoseGraph", "GraphFacts", "connected_components", "component_anchors", "graph_facts"]
+__all__ = ["PoseGraph", "GraphFacts", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,6 +119,8 @@ def component_anchors(graph: PoseGraph) -> np.ndarray:
     vertices already remove the gauge freedom. Returns the vertex indices,
     sorted.
     """
+    if graph.num_vertices == 0:
+        return np.zeros(0, dtype=np.int64)
     count, labels = connected_components(graph)
     has_fixed = np.zeros(count, dtype=bool)
     has_fixed[labels[graph.fixed]] = True
@@ -126,6 +128,17 @@ def component_anchors(graph: PoseGraph) -> np.ndarray:
     order = np.lexsort((graph.ids, labels))
     first = order[np.r_[True, labels[order][1:] != labels[order][:-1]]]
     return np.sort(first[~has_fixed[labels[first]]])
+
+
+def held_vertices(graph: PoseGraph) -> np.ndarray:
+    """``(n,)`` bool: the vertices held constant, ``FIX`` vertices and :func:`component_anchors`.
+
+    The solver and the initialisers keep these at their given pose; this removes the gauge freedom
+    (one rigid motion per connected component) without adding a prior to the cost.
+    """
+    held = np.array(graph.fixed, dtype=bool, copy=True)
+    held[component_anchors(graph)] = True
+    return held
 
 
 @dataclass(frozen=True)

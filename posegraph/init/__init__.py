@@ -19,7 +19,7 @@ import numpy as np
 
 from posegraph.graph import PoseGraph
 from posegraph.init.chordal import chordal_initialization, chordal_rotations, translations_given_rotations
-from posegraph.init.gauge import held_vertices
+from posegraph.graph import held_vertices
 from posegraph.init.odometry import odometry_initialization, spanning_tree
 
 __all__ = [

@@ -37,7 +37,7 @@ import numpy as np
 
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
-from posegraph.init.gauge import held_vertices
+from posegraph.graph import held_vertices
 from posegraph.init.linear_system import RelativeLeastSquares
 from posegraph.init.weights import rotation_weights, translation_information
 from posegraph.lie import so3

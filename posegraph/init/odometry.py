@@ -31,7 +31,7 @@ from scipy.sparse import csgraph
 
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
-from posegraph.init.gauge import held_vertices
+from posegraph.graph import held_vertices
 from posegraph.init.weights import rotation_weights
 from posegraph.lie import se3
 

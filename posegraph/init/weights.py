@@ -11,8 +11,8 @@ Rotation weight (chordal relaxation)
         ``w = tr(Ω_ωω) / 3``,
 
     the mean of ``uᵀ Ω_ωω u`` over unit axes ``u`` — the chordal term then equals the true
-    rotational cost averaged over the direction of the error (for ``Ω_ωω = κ I`` exactly, up to the
-    common factor 4, which does not move the minimiser). The trace needs no inverse or
+    rotational cost averaged over the direction of the error (for ``Ω_ωω = κ I`` it equals it to
+    second order in θ, up to the common factor 4, which does not move the minimiser). The trace needs no inverse or
     factorisation, so it is defined for every information a file can hold, including
     ill-conditioned or slightly indefinite ones, and an edge whose rotation is known tightly about
     two axes and loosely about the third keeps a large weight (the smallest eigenvalue or
