@@ -93,6 +93,47 @@ class _Status:
             print(message, file=sys.stderr, flush=True)
 
 
+class _Ticker:
+    """While a long phase runs, an elapsed-time line on an interactive stderr (redrawn in place).
+
+    Reading, initialising and writing report no fraction done, so the line shows the phase and its
+    seconds so far; it appears only after :data:`TICKER_DELAY` seconds and only on a terminal, so
+    quick runs, pipes and log files see just the final phase line.
+    """
+
+    def __init__(self, status: "_Status", label: str) -> None:
+        self.label = label
+        self.enabled = not status.quiet and sys.stderr.isatty()
+        self._done = None
+
+    def __enter__(self):
+        if self.enabled:
+            import threading
+
+            self._done = threading.Event()
+            self._start = time.perf_counter()
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        if self._done.wait(TICKER_DELAY):
+            return
+        while not self._done.wait(0.25):
+            sys.stderr.write(f"\r{self.label} … {time.perf_counter() - self._start:.1f} s")
+            sys.stderr.flush()
+
+    def __exit__(self, *exc) -> None:
+        if self._done is not None:
+            self._done.set()
+            self._thread.join()
+            sys.stderr.write("\r\033[K")  # clear the ticker line before the final message
+            sys.stderr.flush()
+
+
+TICKER_DELAY = 1.0
+
+
 class _Timer:
     def __enter__(self):
         self.start = time.perf_counter()
@@ -157,11 +198,11 @@ def _import_solver_modules() -> None:
         import sksparse.cholmod  # noqa: F401
 
 
-def _read(path: str, status: _Status):
+def _read(path: str, status: _Status, *, require_edges: bool = True):
     from posegraph.io.g2o import read_g2o
 
-    with _Timer() as t:
-        graph = read_g2o(path)
+    with _Ticker(status, f"reading {path}"), _Timer() as t:
+        graph = read_g2o(path, require_edges=require_edges)
     status(f"read {path}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
     return graph, t.seconds
 
@@ -176,7 +217,7 @@ def _require_matplotlib() -> None:
 # optimize
 
 
-def _solver_options(p: argparse.ArgumentParser, *, defaults_from_solver: bool = True) -> None:
+def _solver_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("lm", "gn"), default="lm",
                    help="Levenberg-Marquardt (default) or Gauss-Newton")
     p.add_argument("--init", choices=("chordal", "odometry", "file"), default="chordal",
@@ -265,10 +306,11 @@ def cmd_optimize(args) -> int:
     _import_solver_modules()
     graph, seconds_read = _read(args.input, status)
     file_cost = float(cost(graph))
-    with _Timer() as t_init:
+    with _Ticker(status, f"initialising ({args.init})"), _Timer() as t_init:
         start = _initial_poses(graph, args)
     start_cost = float(cost(graph, start)) if args.init != "file" else file_cost
-    status(f"initialised ({args.init}): cost {_fmt_cost(file_cost)} -> {_fmt_cost(start_cost)} ({t_init.seconds:.3f} s)")
+    status(f"initialised ({args.init}): cost {_fmt_cost(file_cost)} -> {_fmt_cost(start_cost)} "
+           f"({t_init.seconds:.3f} s)")
 
     params = _solver_params(args, callback=None if args.quiet else _iteration_printer(status))
     with _Timer() as t_opt:
@@ -277,13 +319,13 @@ def cmd_optimize(args) -> int:
 
     seconds = {"read": seconds_read, "initialise": t_init.seconds, "optimise": t_opt.seconds}
     with StagedOutputs() as outputs:
-        with _Timer() as t_write:
+        with _Ticker(status, f"writing {args.output}"), _Timer() as t_write:
             write_g2o(outputs.stage(args.output), graph, result.poses)
         seconds["write"] = t_write.seconds
         if args.plot:
             from posegraph.plot import plot_trajectories
 
-            with _Timer() as t_plot:
+            with _Ticker(status, f"drawing {args.plot}"), _Timer() as t_plot:
                 plot_trajectories(
                     outputs.stage(args.plot), [graph, graph],
                     [f"input ({os.path.basename(args.input)})", "optimised"],
@@ -426,6 +468,13 @@ def cmd_compare(args) -> int:
 def cmd_verify(args) -> int:
     from posegraph.verify import format_checks, verify_all
 
+    if not args.no_gtsam:
+        from posegraph.gtsam_bridge import require_gtsam
+
+        try:
+            require_gtsam()
+        except ImportError as exc:
+            raise ImportError(f"{exc}; or run verify-jacobians --no-gtsam (finite differences only)") from exc
     graph = None
     if args.input:
         graph, _ = _read(args.input, _Status(True))
@@ -455,7 +504,8 @@ def cmd_info(args) -> int:
     rows = [
         ("file", args.input),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "
-                     + ("contiguous" if info["ids_contiguous"] else "not contiguous") + f"), {info['num_fixed']} fixed"),
+                     + ("contiguous" if info["ids_contiguous"] else "not contiguous")
+                     + f"), {info['num_fixed']} fixed"),
         ("edges", f"{info['num_edges']}: {info['num_odometry_edges']} odometry (consecutive ids), "
                   f"{info['num_loop_closures']} loop closures"),
         ("components", str(info["num_components"])),
@@ -523,7 +573,7 @@ def cmd_plot(args) -> int:
     from posegraph.plot import plot_trajectories
 
     status = _Status(True)
-    graphs = [_read(path, status)[0] for path in inputs]
+    graphs = [_read(path, status, require_edges=False)[0] for path in inputs]
     labels = args.labels or [os.path.basename(p) for p in inputs]
     plot_trajectories(args.output, graphs, labels, loop_closures=not args.no_loop_closures, title=args.title)
     return EXIT_OK
@@ -545,7 +595,7 @@ def cmd_export(args) -> int:
     require_open3d()
     from posegraph.atomic import StagedOutputs
 
-    graph, _ = _read(args.input, _Status(True))
+    graph, _ = _read(args.input, _Status(True), require_edges=False)
     with StagedOutputs() as outputs:
         if args.open3d:
             write_open3d_pose_graph(outputs.stage(args.open3d, suffix=".json"), graph)
@@ -620,8 +670,9 @@ examples:
     p.add_argument("input", metavar="IN.g2o", help="input pose graph")
     _solver_options(p)
     p.add_argument("--gtsam-start", choices=("same", "own"), default="same",
-                   help="start gtsam from posegraph's initial poses (default) or from its own chordal "
-                        "initialisation / the file's poses")
+                   help="start gtsam from posegraph's initial poses (default), or let it start on its own: "
+                        "InitializePose3 for --init chordal, the file's poses for --init file (gtsam has no "
+                        "odometry initialiser: --init odometry always shares the start)")
     p.add_argument("--cost-tolerance", type=_non_negative_float, default=COMPARE_COST_TOLERANCE, metavar="TOL",
                    help="largest relative difference of the final costs counted as agreement")
     p.add_argument("--report", metavar="REPORT.json", help="write the comparison as JSON")

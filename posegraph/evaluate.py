@@ -309,8 +309,8 @@ def _is_gtsam_edge_file(path: str) -> bool:
 def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
     """Vertex ids ``(n,)`` and poses ``(n, 4, 4)`` of a trajectory file.
 
-    A g2o file is read with :func:`posegraph.io.g2o.read_g2o`. A file without any ``VERTEX`` line
-    that the g2o reader refuses — gtsam's own format with ``EDGE3 i j x y z roll pitch yaw`` lines,
+    A g2o file is read with :func:`posegraph.io.g2o.read_g2o` (vertices alone are enough). A file
+    without any ``VERTEX`` line that the g2o reader refuses — gtsam's own format with ``EDGE3 i j x y z roll pitch yaw`` lines,
     as in ``sphere2500_groundtruth.txt`` — is read with ``gtsam.readG2o`` (gtsam's reader, so its
     angle convention is gtsam's) and its poses are :func:`chain_odometry` of its edges.
     """
@@ -321,7 +321,7 @@ def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
 
     name = os.fspath(path)
     try:
-        graph = read_g2o(name)
+        graph = read_g2o(name, require_edges=False)
     except GraphError as err:
         if not _is_gtsam_edge_file(name):
             raise
@@ -338,7 +338,9 @@ def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
     try:
         factors, _ = gtsam.readG2o(name, True)
     except RuntimeError as exc:
-        raise InputError(f"gtsam cannot read the file either ({exc}); the g2o reader said: {refused.reason}", name) from exc
+        raise InputError(
+            f"gtsam cannot read the file either ({exc}); the g2o reader said: {refused.reason}", name
+        ) from exc
     ids_from, ids_to, measurements = [], [], []
     for k in range(factors.size()):
         factor = factors.at(k)

@@ -43,7 +43,9 @@ def require_open3d():
     try:
         import open3d
     except (ImportError, OSError) as exc:  # OSError: a missing shared library such as libusb
-        raise ImportError(f"this command needs Open3D, which is not usable here ({exc}); install it: {INSTALL_HINT}") from exc
+        raise ImportError(
+            f"this command needs Open3D, which is not usable here ({exc}); install it: {INSTALL_HINT}"
+        ) from exc
     return open3d
 
 

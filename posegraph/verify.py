@@ -252,7 +252,8 @@ def _lie_checks(rng, samples: int, gtsam) -> list[Check]:
         k = len(omega)
         add("so3.log(so3.exp(ω))", "ω", family, k, _scaled_difference(so3.log(R), omega), CLOSED_FORM_TOLERANCE)
         add("so3.left_jacobian_inverse", "inverse of so3.left_jacobian", family, k,
-            _scaled_difference(mine["left_jacobian_inverse"] @ mine["left_jacobian"], np.broadcast_to(np.eye(3), (k, 3, 3))),
+            _scaled_difference(mine["left_jacobian_inverse"] @ mine["left_jacobian"],
+                               np.broadcast_to(np.eye(3), (k, 3, 3))),
             CLOSED_FORM_TOLERANCE)
         near_pi = GTSAM_NEAR_PI_TOLERANCE if family == "near π" else CLOSED_FORM_TOLERANCE
         if gtsam is not None:
@@ -281,7 +282,8 @@ def _lie_checks(rng, samples: int, gtsam) -> list[Check]:
         delta = rng.normal(scale=0.1, size=(k, 6))
         lhs = T @ se3.exp(delta) @ se3.inverse(T)
         rhs = se3.exp(np.einsum("kij,kj->ki", se3.adjoint(T), delta))
-        add("se3.adjoint", "X·Exp(δ)·X⁻¹ = Exp(Ad(X)·δ)", family, k, _scaled_difference(lhs, rhs), CLOSED_FORM_TOLERANCE)
+        add("se3.adjoint", "X·Exp(δ)·X⁻¹ = Exp(Ad(X)·δ)", family, k, _scaled_difference(lhs, rhs),
+            CLOSED_FORM_TOLERANCE)
         jr = se3.right_jacobian(xi)
         add("se3.right_jacobian_inverse", "inverse of se3.right_jacobian", family, k,
             _scaled_difference(se3.right_jacobian_inverse(xi) @ jr, np.broadcast_to(np.eye(6), (k, 6, 6))),

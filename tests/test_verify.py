@@ -23,7 +23,8 @@ def test_every_check_passes_and_covers_the_hard_cases():
     assert {"random", "near 0", "near π"} <= families
     references = {c.reference for c in checks}
     assert "finite differences" in references and any(r.startswith("gtsam") for r in references)
-    assert {c.tolerance for c in checks} == {CLOSED_FORM_TOLERANCE, FINITE_DIFFERENCE_TOLERANCE, GTSAM_NEAR_PI_TOLERANCE}
+    tolerances = {CLOSED_FORM_TOLERANCE, FINITE_DIFFERENCE_TOLERANCE, GTSAM_NEAR_PI_TOLERANCE}
+    assert {c.tolerance for c in checks} == tolerances
     # The looser gtsam tolerance applies only near π, where gtsam itself is the less accurate side.
     assert all(c.tolerance == CLOSED_FORM_TOLERANCE for c in checks
                if c.reference.startswith("gtsam") and c.cases != "near π")

@@ -80,3 +80,28 @@ def test_info_on_a_malformed_file(tmp_path):
     bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 0 1 0 0 0 0 0 1\n"
                    "EDGE_SE3:QUAT 0 0 1 0 0 0 0 0 1" + " 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n")
     assert_one_error_line(run_cli("info", bad), f"{bad}:")
+
+
+def test_input_warnings_are_one_line_each(tmp_path):
+    """Repairs are reported as `posegraph: warning: file:line: …`, one line each, and the command runs."""
+    info = "1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1"
+    text = "\n".join([
+        "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1",
+        "VERTEX_SE3:QUAT 1 1 0 0 0 0 0 2",  # quaternion norm 2: normalised
+        "VERTEX_SE3:QUAT 2 5 0 0 0 0 0 1",
+        "VERTEX_SE3:QUAT 3 6 0 0 0 0 0 1",
+        "PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1",  # unknown tag: skipped
+        f"EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {info}",
+        f"EDGE_SE3:QUAT 2 3 1 0 0 0 0 0 1 {info}",  # a second component
+    ]) + "\n"
+    path = tmp_path / "repairs.g2o"
+    path.write_text(text)
+    run = run_cli("info", path)
+    assert run.returncode == 0, run.stderr
+    warnings = run.stderr_lines
+    assert len(warnings) == 3, run.stderr
+    assert all(line.startswith(f"posegraph: warning: {path}") for line in warnings)
+    assert any(f"{path}:2:" in line and "quaternion" in line for line in warnings)
+    assert any(f"{path}:5:" in line and "PARAMS_SE3OFFSET" in line for line in warnings)
+    assert any("2 connected components" in line for line in warnings)
+    assert re.search(r"components:\s+2", run.stdout)

@@ -118,12 +118,13 @@ def test_fix_lines_and_edges_are_kept(tmp_path, shared_dataset):
 def test_iteration_cap_exits_1_with_the_result_written(tmp_path, shared_dataset):
     out, report = tmp_path / "out.g2o", tmp_path / "r.json"
     run = run_cli("optimize", shared_dataset("tinyGrid3D"), "-o", out, "--report", report,
-                  "--init", "file", "--max-iterations", "1")
+                  "--init", "file", "--max-iterations", "1", "--linear-solver", "scipy")
     assert run.returncode == 1, run.stderr
     assert any(line.startswith("posegraph: warning:") and "before converging" in line for line in run.stderr_lines)
     data = json.loads(report.read_text())
     assert data["converged"] is False and data["iterations"] == 1 and data["termination"] == "maximum iterations"
     assert out.is_file() and data["final_cost"] < data["initial_cost"]
+    assert data["linear_solver"].startswith("scipy") and data["settings"]["linear_solver_requested"] == "scipy"
 
 
 MALFORMED = {
@@ -162,6 +163,9 @@ def test_usage_errors_are_one_line(tmp_path):
     assert_one_error_line(run_cli("optimize", "x.g2o", "-o", "y.g2o", "--method", "newton"), "newton")
     assert_one_error_line(run_cli("optimize", "x.g2o", "-o", "y.g2o", "--max-iterations", "-3"), "-3")
     assert_one_error_line(run_cli("frobnicate"), "frobnicate")
+    assert_one_error_line(run_cli("optimize", "x.g2o", "-o", tmp_path / "a.g2o", "--report", tmp_path / "a.g2o"),
+                          "same file")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_input_is_never_overwritten_without_force(tmp_path, shared_dataset):

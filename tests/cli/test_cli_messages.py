@@ -1,0 +1,79 @@
+"""Messages for missing optional packages and interruptions, checked in-process (cli.main) for speed."""
+
+from __future__ import annotations
+
+import pytest
+
+import cli
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("posegraph: error: "), err
+    return lines[0]
+
+
+def missing(name, hint):
+    def raise_import_error(*args, **kwargs):
+        raise ImportError(f"this command needs {name}, which is not installed; install it: {hint}")
+
+    return raise_import_error
+
+
+def test_missing_gtsam_says_how_to_install(monkeypatch, capsys, shared_dataset):
+    import posegraph.gtsam_bridge as bridge
+
+    monkeypatch.setattr(bridge, "require_gtsam", missing("gtsam", bridge.INSTALL_HINT))
+    assert cli.main(["compare", str(shared_dataset("tinyGrid3D"))]) == 2
+    assert 'pip install "posegraph[gtsam]"' in one_error_line(capsys)
+    assert cli.main(["verify-jacobians"]) == 2
+    assert "--no-gtsam" in one_error_line(capsys)
+
+
+def test_missing_open3d_says_how_to_install(monkeypatch, capsys, tmp_path, shared_dataset):
+    import posegraph.export_open3d as export
+
+    monkeypatch.setattr(export, "require_open3d", missing("Open3D", export.INSTALL_HINT))
+    status = cli.main(["export", str(shared_dataset("tinyGrid3D")), "--open3d", str(tmp_path / "g.json")])
+    assert status == 2
+    line = one_error_line(capsys)
+    assert "pip install open3d" in line and "libusb-1.0-0" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_missing_matplotlib_is_found_before_any_work(monkeypatch, capsys, tmp_path, shared_dataset):
+    import posegraph.plot as plot
+
+    monkeypatch.setattr(plot, "require_matplotlib", missing("matplotlib", 'pip install "posegraph[plot]"'))
+    out = tmp_path / "out.g2o"
+    status = cli.main(["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(out), "--plot", str(tmp_path / "f.png")])
+    assert status == 2
+    assert "posegraph[plot]" in one_error_line(capsys)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_bug_is_not_disguised_as_a_usage_error(monkeypatch, shared_dataset, tmp_path):
+    import posegraph.solve as solve
+
+    def broken(*args, **kwargs):
+        raise ImportError("No module named 'posegraph.nonexistent'", name="posegraph.nonexistent")
+
+    monkeypatch.setattr(solve, "optimize", broken)
+    with pytest.raises(ImportError):
+        cli.main(["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(tmp_path / "out.g2o"), "--quiet"])
+
+
+def test_interrupt_while_writing_leaves_nothing(monkeypatch, capsys, tmp_path, shared_dataset):
+    """Ctrl-C after the result is staged but while the report is written: no output at all."""
+    import posegraph.atomic as atomic
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic, "write_json_atomic", interrupted)
+    status = cli.main(["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(tmp_path / "out.g2o"),
+                       "--report", str(tmp_path / "r.json"), "--quiet"])
+    assert status == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
