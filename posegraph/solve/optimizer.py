@@ -17,7 +17,7 @@ the actual over the predicted decrease of the cost. A step with
 until a step is accepted or λ passes ``lambda_max``.
 
 Gauge: fixed vertices and the anchor of every component without one
-(:func:`posegraph.graph.component_anchors`) have no variables at all — their
+(:func:`posegraph.graph.held_vertices`) have no variables at all — their
 columns are not in the system — so the cost is exactly the graph's, with no
 prior added.
 """
@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, component_anchors
+from posegraph.graph import PoseGraph, held_vertices
 from posegraph.lie import se3
 from posegraph.solve.linear import NotPositiveDefiniteError, make_linear_solver
 from posegraph.solve.linearize import linearize
@@ -37,7 +37,7 @@ from posegraph.solve.residuals import edge_errors, weighted_cost
 from posegraph.solve.result import IterationRecord, OptimizeResult
 from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values
 
-__all__ = ["optimize", "held_vertices"]
+__all__ = ["optimize"]
 
 CONVERGED_RELATIVE = "converged: relative decrease"
 CONVERGED_ABSOLUTE = "converged: absolute decrease"
@@ -50,13 +50,6 @@ NO_DECREASE = "no decrease"
 NOT_POSITIVE_DEFINITE = "linear system not positive definite"
 NON_FINITE = "non-finite cost"
 CALLBACK = "callback"
-
-
-def held_vertices(graph: PoseGraph) -> np.ndarray:
-    """``(n,)`` bool: vertices the solver holds constant (``FIX`` vertices and component anchors)."""
-    held = np.array(graph.fixed, dtype=bool, copy=True)
-    held[component_anchors(graph)] = True
-    return held
 
 
 def _initial_poses(graph: PoseGraph, initial) -> np.ndarray:
@@ -156,7 +149,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
 
     if pattern.num_variables == 0 or graph.num_edges == 0:
         return finish(CONVERGED_NOTHING, True, [], "none", time.perf_counter() - setup_start)
-    solver = make_linear_solver(params.linear_solver, pattern, params.ordering)
+    solver = make_linear_solver(params.linear_solver, pattern, params.ordering, params.blas_threads)
     seconds_setup = time.perf_counter() - setup_start
     if current_cost <= params.cost_tolerance:
         return finish(CONVERGED_COST, True, [], solver.name, seconds_setup)
@@ -203,21 +196,22 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
             trial = None
             if factor_ok:
                 step = solver.solve(-gradient)
-                step_norm = float(np.linalg.norm(step))
+                step_norm = float(np.sqrt(np.einsum("i,i->", step, step)))
                 # L(0) − L(δ) = −gᵀδ − ½ δᵀHδ = ½ δᵀ(λDδ − g), using (H + λD)δ = −g
-                predicted = 0.5 * float(step @ (lam * damping * step - gradient))
+                # (einsum, not a BLAS dot: numpy's BLAS threads would then spin against CHOLMOD's)
+                predicted = 0.5 * float(np.einsum("i,i->", step, lam * damping * step - gradient))
                 if np.all(np.isfinite(step)) and predicted > 0:
                     trial = _retract(poses, free, step.reshape(-1, 6))
                     trial_errors, new_cost = evaluate(trial)
             seconds_solve += time.perf_counter() - tb
 
             if trial is None:
+                if factor_ok and np.isfinite(predicted) and abs(predicted) <= 1e-300:
+                    stop = CONVERGED_PREDICTED  # zero gradient: nothing left to decrease
+                    break
                 # Not positive definite (or the step is garbage): no usable model at this λ.
                 if not lm:
                     stop = NOT_POSITIVE_DEFINITE
-                    break
-                if factor_ok and np.isfinite(predicted) and abs(predicted) <= 1e-300:
-                    stop = CONVERGED_PREDICTED  # zero gradient: nothing left to decrease
                     break
             else:
                 decrease = current_cost - new_cost

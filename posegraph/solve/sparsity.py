@@ -104,8 +104,9 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     both = (ci >= 0) & (cj >= 0)
     brow = np.maximum(ci[both], cj[both])
     bcol = np.minimum(ci[both], cj[both])
-    key = np.unique(bcol * max(p, 1) + brow)  # sorted by column, then row
-    off_col, off_row = key // max(p, 1), key % max(p, 1)
+    stride = max(p, 1)
+    key = np.unique(bcol * stride + brow)  # sorted by column, then row
+    off_col, off_row = key // stride, key % stride
     off_per_col = np.bincount(off_col, minlength=p)
     # start of each block column's off-diagonal blocks in the sorted key list
     off_start = np.concatenate(([0], np.cumsum(off_per_col)))[:-1]
@@ -123,7 +124,7 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         start = indptr[BLOCK * c + qc]
         diag = r == c
         # position s of block (r, c) among column c's off-diagonal blocks
-        k = np.searchsorted(key, c * max(p, 1) + r)
+        k = np.searchsorted(key, c * stride + r)
         s = k - off_start[c]
         return np.where(diag, start + pr - qc, start + (BLOCK - qc) + BLOCK * s + pr)
 
@@ -143,10 +144,10 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij]
     rows_list, cols_list = [], []
     flat = np.arange(m * 3 * 36, dtype=np.int64).reshape(m, 3, BLOCK, BLOCK)
-    for which, (a, b) in enumerate(((ci, ci), (cj, cj))):
-        sel = a >= 0
+    for which, variable in enumerate((ci, cj)):  # H_ii, then H_jj: lower halves of diagonal blocks
+        sel = variable >= 0
         if np.any(sel):
-            c = a[sel][:, None]
+            c = variable[sel][:, None]
             rows_list.append(slot(c, c, pp[lower][None, :], qq[lower][None, :]).ravel())
             cols_list.append(flat[sel, which][:, lower].ravel())
     # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci).
@@ -162,7 +163,6 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     hessian_scatter = sp.csr_matrix(
         (np.ones(rows.shape[0]), (rows, colsel)), shape=(nnz, m * 3 * 36)
     )
-    hessian_scatter.sum_duplicates()
 
     # --- gradient scatter: grads (m, 2, 6) = [g_i, g_j]
     gflat = np.arange(m * 2 * BLOCK, dtype=np.int64).reshape(m, 2, BLOCK)

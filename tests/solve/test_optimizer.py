@@ -132,8 +132,9 @@ def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1):
 @pytest.mark.parametrize("linear_solver", ["scipy", "auto"])
 def test_lm_and_gn_agree_on_a_synthetic_graph(linear_solver):
     graph = synthetic_graph(0)
-    lm = optimize(graph, initial="file", params=SolverParams(method="lm", linear_solver=linear_solver))
-    gn = optimize(graph, initial="file", params=SolverParams(method="gn", linear_solver=linear_solver))
+    tight = dict(relative_tolerance=1e-14, absolute_tolerance=1e-14, linear_solver=linear_solver)
+    lm = optimize(graph, initial="file", params=SolverParams(method="lm", **tight))
+    gn = optimize(graph, initial="file", params=SolverParams(method="gn", **tight))
     assert lm.converged and gn.converged
     assert lm.final_cost < 0.1 * lm.initial_cost
     assert lm.final_cost == pytest.approx(gn.final_cost, rel=1e-9)
@@ -160,8 +161,9 @@ def test_each_component_is_anchored_at_its_smallest_id():
 def test_optimum_does_not_depend_on_which_single_vertex_holds_the_gauge():
     free = synthetic_graph(3)
     fixed_elsewhere = synthetic_graph(3, fixed=[17])
-    a = optimize(free, initial="file")
-    b = optimize(fixed_elsewhere, initial="file")
+    tight = SolverParams(relative_tolerance=1e-14, absolute_tolerance=1e-14)
+    a = optimize(free, initial="file", params=tight)
+    b = optimize(fixed_elsewhere, initial="file", params=tight)
     assert a.final_cost == pytest.approx(b.final_cost, rel=1e-9)
     # the two solutions differ by one rigid motion: relative poses agree
     rel_a = np.linalg.inv(a.poses[:-1]) @ a.poses[1:]
@@ -235,3 +237,30 @@ def test_initial_poses_are_not_modified():
     start = graph.poses.copy()
     optimize(graph, initial=start)
     np.testing.assert_array_equal(start, graph.poses)
+
+
+@pytest.mark.parametrize("method", ["lm", "gn"])
+def test_starting_at_an_exact_optimum_converges_at_once(method):
+    graph = synthetic_graph(11, noise=0.0)
+    exact = graph.poses.copy()
+    # make every measurement exact for the initial poses: zero residuals, zero gradient
+    relative = np.linalg.inv(exact[graph.edge_from]) @ exact[graph.edge_to]
+    graph = PoseGraph(graph.ids, exact, graph.edge_from, graph.edge_to, relative, graph.information)
+    result = optimize(graph, initial="file", params=SolverParams(method=method))
+    assert result.converged, result.termination
+    assert result.iterations <= 1
+    assert result.final_cost < 1e-20
+    np.testing.assert_allclose(result.poses, exact, atol=1e-12)
+
+
+def test_gauss_newton_reports_a_singular_system():
+    # An edge whose information constrains nothing in some directions: H is singular for GN.
+    graph = synthetic_graph(12, n=4, loops=0)
+    information = graph.information.copy()
+    information[:, 3:, :] = 0.0
+    information[:, :, 3:] = 0.0  # rotations only: translations of vertices 1..3 are free
+    graph = PoseGraph(graph.ids, graph.poses, graph.edge_from, graph.edge_to, graph.measurements, information)
+    gn = optimize(graph, initial="file", params=SolverParams(method="gn", linear_solver="auto"))
+    assert gn.termination == "linear system not positive definite" and not gn.converged
+    lm = optimize(graph, initial="file", params=SolverParams(method="lm"))  # damping copes
+    assert lm.converged and lm.final_cost < 1e-3 * lm.initial_cost
