@@ -25,9 +25,11 @@ class IterationRecord:
     lambda_: float
     """LM damping λ of the accepted (or last tried) step; 0 for Gauss-Newton."""
     step_norm: float
-    """Euclidean norm of the accepted (or last tried) tangent step δ over all free vertices."""
+    """Euclidean norm of the accepted (or last tried) solved tangent step δ over all free vertices
+    (the poses moved by ``step_scale · δ``)."""
     gain_ratio: float
-    """Actual over predicted cost decrease of that step (NaN if the model predicted none)."""
+    """Actual over predicted cost decrease of that step, at the scale ``step_scale`` it was taken
+    (NaN if the model predicted none)."""
     accepted: bool
     """Whether a step was accepted in this iteration."""
     attempts: int
@@ -39,7 +41,10 @@ class IterationRecord:
     seconds_factorize: float
     """Numeric factorisation(s) of the damped normal equations."""
     seconds_solve: float
-    """Triangular solves, and evaluating the cost at the trial poses."""
+    """Triangular solves, and evaluating the cost at the trial poses (line-search trials included)."""
+    step_scale: float = 1.0
+    """Fraction ``t`` of the solved step δ that was taken, ``X ← X ⊕ t·δ``: 1 for a full step, below 1
+    when the line search shortened a step the quadratic model over-promised (NaN if none was taken)."""
 
     @property
     def seconds(self) -> float:
@@ -63,8 +68,8 @@ class OptimizeResult:
     """Why the solver stopped: ``"converged: relative decrease"``, ``"converged: absolute decrease"``,
     ``"converged: cost below tolerance"``, ``"converged: predicted decrease below tolerance"``,
     ``"converged: nothing to optimise"``, ``"maximum iterations"``, ``"lambda exceeded bound"``,
-    ``"no decrease"`` (Gauss-Newton step increased the cost), ``"linear system not positive definite"``,
-    ``"non-finite cost"`` or ``"callback"``."""
+    ``"no decrease"`` (Gauss-Newton: neither the step nor any shortening of it decreased the cost),
+    ``"linear system not positive definite"``, ``"non-finite cost"`` or ``"callback"``."""
     converged: bool
     """True when one of the ``"converged: ..."`` reasons applies."""
     linear_solver: str

@@ -196,9 +196,12 @@ def test_maximum_iterations_and_callback_stop():
 
 
 def test_lambda_bound_stops_lm():
-    # A λ ceiling below the first λ increase: the first rejected step ends the run.
+    # A λ ceiling below the first λ increase: the first rejected step ends the run. (Without the
+    # line search, which would otherwise accept a shortened step instead of raising λ.)
     graph = synthetic_graph(6, noise=0.2)
-    params = SolverParams(initial_lambda=1e-8, lambda_max=1e-8, lambda_min=0.0, min_gain_ratio=0.999999)
+    params = SolverParams(
+        initial_lambda=1e-8, lambda_max=1e-8, lambda_min=0.0, min_gain_ratio=0.999999, line_search=False
+    )
     result = optimize(graph, initial="file", params=params)
     assert result.termination == "lambda exceeded bound"
     assert not result.converged
