@@ -23,6 +23,8 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 
+_phase = "start"  # the phase running, named in the one-line error message
+
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -34,15 +36,19 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     seconds = {}
 
+    global _phase
+    _phase = "import"
     t = time.perf_counter()
     import gtsam
 
     seconds["import"] = time.perf_counter() - t
 
+    _phase = "read"
     t = time.perf_counter()
     graph, initial = gtsam.readG2o(args.input, True)
     seconds["read"] = time.perf_counter() - t
 
+    _phase = "initialize"
     t = time.perf_counter()
     keys = sorted(graph.keyVector())
     anchor = min(initial.keys()) if initial.size() else keys[0]
@@ -56,6 +62,7 @@ def main(argv=None) -> int:
     seconds["initialize"] = time.perf_counter() - t
     initial_cost = graph.error(start)
 
+    _phase = "optimize"
     t = time.perf_counter()
     if args.method == "lm":
         optimizer = gtsam.LevenbergMarquardtOptimizer(with_prior, start, gtsam.LevenbergMarquardtParams())
@@ -65,6 +72,7 @@ def main(argv=None) -> int:
     seconds["optimize"] = time.perf_counter() - t
     final_cost = graph.error(result)
 
+    _phase = "write"
     t = time.perf_counter()
     gtsam.writeG2o(graph, result, args.output)
     seconds["write"] = time.perf_counter() - t
@@ -86,5 +94,15 @@ def main(argv=None) -> int:
     return 0
 
 
+def _main() -> int:
+    """``main`` with gtsam's exceptions reduced to one line on stderr (exit status 1)."""
+    try:
+        return main()
+    except RuntimeError as error:  # gtsam raises RuntimeError with a multi-line explanation
+        lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+        print(f"gtsam_pipeline: {_phase} failed: {' '.join(lines[:2])}", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(_main())

@@ -24,11 +24,11 @@ from __future__ import annotations
 import json
 import os
 import platform
+import signal
 import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -73,35 +73,40 @@ class ProcessRun:
     stderr: str = ""
 
 
+SPAWN = Path(__file__).resolve().parent / "spawn.py"
+
+
 def run_process(command: list[str], timeout: float | None = None, cwd: Path = ROOT) -> ProcessRun:
     """Run ``command`` to completion and measure its wall time, peak memory and CPU time.
 
-    ``os.wait4`` returns the resource usage of exactly this child (unlike
-    ``getrusage(RUSAGE_CHILDREN)``, which accumulates all reaped children and keeps the maximum
-    of ``ru_maxrss`` over them). On timeout the process is killed and ``returncode`` is negative.
+    The command is started by the tiny launcher ``benchmarks/spawn.py`` (see its docstring: a
+    child forked from this big process would inherit its memory high-water mark), which times it
+    and takes its resource usage from ``os.wait4`` — the usage of exactly that child, unlike
+    ``getrusage(RUSAGE_CHILDREN)``, which keeps the maximum over all reaped children. On timeout
+    the launcher's process group is killed and ``returncode`` is negative.
     """
-    with tempfile.TemporaryFile() as err:
-        start = time.perf_counter()
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, cwd=cwd)
-        timer = threading.Timer(timeout, process.kill) if timeout else None
-        if timer:
-            timer.start()
+    with tempfile.TemporaryDirectory(prefix="posegraph-spawn-") as tmp:
+        result_path = Path(tmp) / "usage.json"
+        err_path = Path(tmp) / "stderr"
+        with open(err_path, "wb") as err:
+            process = subprocess.Popen(
+                [sys.executable, "-I", "-S", str(SPAWN), str(result_path), *command],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, cwd=cwd, start_new_session=True,
+            )
+            try:
+                process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+                return ProcessRun(wall=float(timeout), max_rss=0, cpu=0.0, returncode=-signal.SIGKILL,
+                                  stderr=f"killed after {timeout:g} s")
+        stderr = err_path.read_bytes().decode(errors="replace")[-4000:]
         try:
-            _, status, usage = os.wait4(process.pid, 0)
-        finally:
-            if timer:
-                timer.cancel()
-        wall = time.perf_counter() - start
-        process.returncode = os.waitstatus_to_exitcode(status)  # reaped here; keep Popen consistent
-        err.seek(0)
-        stderr = err.read().decode(errors="replace")
-    return ProcessRun(
-        wall=wall,
-        max_rss=int(usage.ru_maxrss) * 1024,  # Linux reports KiB
-        cpu=usage.ru_utime + usage.ru_stime,
-        returncode=process.returncode,
-        stderr=stderr[-2000:],
-    )
+            usage = json.loads(result_path.read_text())
+        except (OSError, ValueError):
+            return ProcessRun(wall=0.0, max_rss=0, cpu=0.0, returncode=process.returncode or -1, stderr=stderr)
+    return ProcessRun(wall=usage["wall"], max_rss=int(usage["max_rss"]), cpu=usage["cpu"],
+                      returncode=usage["returncode"], stderr=stderr)
 
 
 # --------------------------------------------------------------------------------------------
@@ -456,8 +461,19 @@ def machine_info() -> dict:
         info["cholmod_blas"] = _linked_blas(cholmod.__file__)
     except ImportError:
         info["cholmod_blas"] = None
+    info["git"] = git_state()
     info["threads"] = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ}
     return info
+
+
+def git_state() -> str | None:
+    """The project's commit, and whether tracked files differ from it (None outside git)."""
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return f"{commit}{' + uncommitted changes' if dirty else ''}" if commit else None
 
 
 def _linked_blas(library: str) -> str | None:
@@ -556,7 +572,8 @@ def run_rows(results: list[dict]) -> list[list]:
             rows.append(
                 [
                     result["dataset"], result["vertices"], result["edges"], tool,
-                    _fmt_cost(s["initial_cost"]), _fmt_cost(s["final_cost"]), s["iterations"],
+                    _fmt_cost(s["initial_cost"]), _fmt_cost(s["final_cost"]),
+                    f"{s['iterations']}{' (not converged)' if s.get('converged') is False else ''}",
                     *(_fmt_seconds(s["seconds"][p]) for p in PHASES + ("other",)),
                     _fmt_seconds(s["wall"]), "—" if ratio is None else f"{ratio:.2f}", f"{s['max_rss'] / 2**20:.0f}",
                 ]
@@ -614,7 +631,8 @@ def to_markdown(benchmark: dict) -> str:
         f"Taken {benchmark['started']} on {m.get('cpu', '?')}, {m.get('cores')} cores, {m.get('memory_gb', '?')} GB; "
         f"Python {m.get('python')}, numpy {m.get('numpy')} (BLAS {m.get('numpy_blas')}), scipy {m.get('scipy')}, "
         f"scikit-sparse {m.get('scikit-sparse')} (CHOLMOD BLAS {m.get('cholmod_blas')}), gtsam {m.get('gtsam')}. "
-        f"Load average at start {' '.join(m.get('load_average') or [])}, at end {' '.join(m.get('load_average_end') or [])}.",
+        f"Load average at start {' '.join(m.get('load_average') or [])}, at end {' '.join(m.get('load_average_end') or [])}. "
+        f"posegraph at git {m.get('git')}.",
         "",
         f"Whole processes, {s['warmup']} warm-up + {s['repeats']} alternating rounds per dataset, medians; "
         f"ratios are ours / the other tool's end-to-end wall time. Target on {', '.join(TARGET_DATASETS)}: "

@@ -9,8 +9,9 @@ seed 0, default noise), writes it to a temporary g2o file and runs one *worker* 
 memory: before a phase the worker resets the kernel's high-water mark (``/proc/self/clear_refs``
 ← 5) and after it reads ``VmHWM`` from ``/proc/self/status``. The optimiser's own split
 (linearise, assemble, factorise, solve per iteration; symbolic setup once) comes from
-:class:`posegraph.solve.OptimizeResult`. The parent adds the whole-process wall time and
-``ru_maxrss``.
+:class:`posegraph.solve.OptimizeResult`. The parent adds the whole-process wall time; the
+process's peak memory is the largest phase peak (resetting the high-water mark also resets the
+``ru_maxrss`` the kernel reports at exit).
 
 Fill-in: the solver does not expose CHOLMOD's factor, so the parent analyses the same sparsity at
 the vertex level (one scalar per pose, an SPD matrix with the graph's adjacency) with CHOLMOD's
@@ -20,9 +21,10 @@ column counts ``c_j``. Each 6×6 block of the real system multiplies them by 36 
 few-layer slab (planar-like graphs, separators ~ √n) and ``n^{4/3}`` nnz / ``n²`` flops for a
 full 3D lattice (separators ~ n^{2/3}).
 
-Shapes: ``sphere`` (rings × nodes, as g2o's create_sphere), ``slab`` (a 3D grid 8 layers high:
-a multi-storey building) and ``cube`` (a full 3D grid, the worst case for fill-in; sizes above
-~30,000 poses take minutes per factorisation, so it stops there by default).
+Shapes: ``sphere`` (rings × nodes, as g2o's create_sphere), ``slab`` (a 3D grid 4 layers high:
+a multi-storey building) and ``cube`` (a full 3D grid, the worst case for fill-in: at 200,000 poses
+its factor alone would need ~30 GB, so it stops at 27,000 by default). An 8-layer slab of 200,000
+poses already needs ~13 GB for the factor and ~10¹³ flops per factorisation (AMD).
 
 Writes ``scaling.json`` and ``scaling.png`` (matplotlib, Agg) into ``--out``.
 """
@@ -38,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-SLAB_LAYERS = 8
+SLAB_LAYERS = 4
 DEFAULT_SIZES = {
     "sphere": (1000, 2000, 5000, 10000, 20000, 50000, 100000, 200000),
     "slab": (1000, 2000, 5000, 10000, 20000, 50000, 100000, 200000),
@@ -68,12 +70,12 @@ def _reset_high_water_mark() -> bool:
         return False
 
 
-def worker(source: str, report_path: str, output: str) -> int:
+def worker(source: str, report_path: str, output: str, ordering: str = "auto") -> int:
     """Read, initialise, optimise and write ``source``; time and measure each phase; write a JSON report."""
     started = time.perf_counter()
     from posegraph.init import initialize
     from posegraph.io.g2o import read_g2o, write_g2o
-    from posegraph.solve import optimize
+    from posegraph.solve import SolverParams, optimize
 
     seconds, peak = {"import": time.perf_counter() - started}, {}
     resettable = _reset_high_water_mark()
@@ -88,7 +90,7 @@ def worker(source: str, report_path: str, output: str) -> int:
 
     graph = phase("read", lambda: read_g2o(source))
     start = phase("initialize", lambda: initialize(graph, method="chordal"))
-    result = phase("optimize", lambda: optimize(graph, initial=start))
+    result = phase("optimize", lambda: optimize(graph, initial=start, params=SolverParams(ordering=ordering)))
     phase("write", lambda: write_g2o(output, graph, result.poses))
     records = result.records
     report = {
@@ -104,6 +106,7 @@ def worker(source: str, report_path: str, output: str) -> int:
         "termination": result.termination,
         "converged": result.converged,
         "linear_solver": result.linear_solver,
+        "ordering": ordering,
         "optimize_split": {
             "setup": result.seconds_setup,
             "linearize": result.seconds_linearize,
@@ -122,7 +125,7 @@ def worker(source: str, report_path: str, output: str) -> int:
 
 def make_dataset(shape: str, size: int, seed: int = 0):
     """The synthetic graph of one scaling point."""
-    from datasets.synthetic import generate, shape_arguments
+    from datasets.synthetic import generate
 
     if shape == "sphere":
         return generate("sphere", size, seed=seed)
@@ -165,9 +168,9 @@ def fill_in(graph) -> dict:
     return out
 
 
-def run_point(shape: str, size: int, timeout: float, log=print) -> dict:
+def run_point(shape: str, size: int, timeout: float, log=print, ordering: str = "auto") -> dict:
     """Generate one graph, analyse its fill-in, and measure one worker process on it."""
-    from benchmarks.harness import ROOT, run_process
+    from benchmarks.harness import ROOT, git_state, run_process
     from datasets.synthetic import write_dataset
 
     t = time.perf_counter()
@@ -181,12 +184,12 @@ def run_point(shape: str, size: int, timeout: float, log=print) -> dict:
         report_path = Path(tmp) / "report.json"
         output = Path(tmp) / "out.g2o"
         file_bytes = source.stat().st_size
-        command = [sys.executable, "-m", "benchmarks.scaling", "--worker", str(source), "--report", str(report_path), "--write", str(output)]
+        command = [sys.executable, "-m", "benchmarks.scaling", "--worker", str(source), "--report", str(report_path), "--write", str(output), "--ordering", ordering]
         process = run_process(command, timeout=timeout, cwd=ROOT)
         if process.returncode != 0 or not report_path.is_file():
             tail = process.stderr.strip().splitlines()[-1:] or [f"exit {process.returncode}"]
             log(f"  {dataset.name}: worker failed: {tail[0]}")
-            return {"shape": shape, "size": size, "name": dataset.name, "error": tail[0], "wall": process.wall}
+            return {"shape": shape, "size": size, "ordering": ordering, "name": dataset.name, "error": tail[0], "wall": process.wall}
         report = json.loads(report_path.read_text())
     point = {
         "shape": shape,
@@ -194,8 +197,11 @@ def run_point(shape: str, size: int, timeout: float, log=print) -> dict:
         "name": dataset.name,
         "file_bytes": file_bytes,
         "seconds_generate": seconds_generate,
+        "git": git_state(),
         "wall": process.wall,
-        "max_rss": process.max_rss,
+        # Resetting VmHWM also resets what the kernel reports as ru_maxrss at exit: the process's
+        # peak is the largest of the phases' peaks (ru_maxrss is the last phase's, or more).
+        "max_rss": max([process.max_rss, *report["peak_bytes"].values()]),
         "cpu": process.cpu,
         "fill": fill,
         **report,
@@ -204,7 +210,7 @@ def run_point(shape: str, size: int, timeout: float, log=print) -> dict:
     log(
         f"  {dataset.name}: {report['vertices']} poses, {report['edges']} edges: wall {process.wall:.2f} s "
         f"(read {s['read']:.2f}, init {s['initialize']:.2f}, optimise {s['optimize']:.2f} in {report['iterations']} it, "
-        f"write {s['write']:.2f}), peak {process.max_rss / 2**30:.2f} GB, nnz(L)≈{fill['amd']['nnz_L_scalar']:.3g} (AMD)"
+        f"write {s['write']:.2f}), peak {point['max_rss'] / 2**30:.2f} GB, nnz(L)≈{fill['amd']['nnz_L_scalar']:.3g} (AMD)"
     )
     return point
 
@@ -218,15 +224,14 @@ def log_log_slope(x, y) -> float | None:
     return float(np.polyfit(np.log(x[keep]), np.log(y[keep]), 1)[0])
 
 
-def slopes(points: list[dict], top: int = 4) -> dict:
+def slopes(points: list[dict], top: int = 3) -> dict:
     """Power-law exponents vs edges over the ``top`` largest sizes of each shape, per quantity."""
     out = {}
-    for shape in sorted({p["shape"] for p in points}):
-        pts = sorted((p for p in points if p["shape"] == shape and "error" not in p), key=lambda p: p["edges"])[-top:]
+    for shape in sorted({series_key(p) for p in points}):
+        pts = sorted((p for p in points if series_key(p) == shape and "error" not in p), key=lambda p: p["edges"])[-top:]
         if len(pts) < 2:
             continue
         edges = [p["edges"] for p in pts]
-        split = lambda key: [p["optimize_split"][key] for p in pts]  # noqa: E731
         per_iteration = lambda key: [p["optimize_split"][key] / max(1, p["iterations"]) for p in pts]  # noqa: E731
         out[shape] = {
             "edges": edges,
@@ -242,80 +247,118 @@ def slopes(points: list[dict], top: int = 4) -> dict:
             "flops AMD": log_log_slope(edges, [p["fill"]["amd"]["flops"] for p in pts]),
             "peak memory": log_log_slope(edges, [p["max_rss"] for p in pts]),
         }
-        del split
     return out
 
 
+def series_key(point: dict) -> str:
+    """The plotted series of a point: its shape, plus the ordering when not the default."""
+    ordering = point.get("ordering", "auto")
+    return point["shape"] if ordering == "auto" else f"{point['shape']} ({ordering})"
+
+
 def plot(points: list[dict], path: Path) -> None:
-    """Four panels against edges (log-log): phase seconds, optimiser split per iteration, peak memory, fill-in."""
+    """Four panels against edges (log-log): phase seconds, inside the optimiser, peak memory, fill-in.
+
+    Colour is the quantity, marker and line style the series (shape, and ordering if not the default).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
-    shapes = sorted({p["shape"] for p in points})
-    markers = dict(zip(("sphere", "slab", "cube"), ("o", "s", "^")))
-    styles = dict(zip(("sphere", "slab", "cube"), ("-", "--", ":")))
+    good = [p for p in points if "error" not in p]
+    keys = sorted({series_key(p) for p in good})
+    looks = dict(zip(keys, [("o", "-"), ("s", "--"), ("^", ":"), ("D", "-."), ("v", (0, (1, 3))), ("P", (0, (5, 1)))]))
     fig, axes = plt.subplots(2, 2, figsize=(13, 10))
 
-    def series(shape, value):
-        pts = sorted((p for p in points if p["shape"] == shape and "error" not in p), key=lambda p: p["edges"])
+    def series(key, value):
+        pts = sorted((p for p in good if series_key(p) == key), key=lambda p: p["edges"])
         return np.array([p["edges"] for p in pts], float), np.array([value(p) for p in pts], float)
 
-    def reference(ax, x_all, y_anchor, label, exponent=1.0):
-        if len(x_all) == 0:
-            return
-        x = np.array([min(x_all), max(x_all)])
-        ax.plot(x, y_anchor * (x / x[0]) ** exponent, color="0.6", lw=1, ls="-.", label=label)
+    def draw(ax, quantities, title, ylabel, reference=None, loc="upper left"):
+        for key in keys:
+            marker, style = looks[key]
+            for label, colour, value in quantities:
+                x, y = series(key, value)
+                if len(x):
+                    ax.plot(x, y, marker=marker, ls=style, color=colour, ms=4)
+        handles = [Line2D([], [], color=c, lw=2, label=label) for label, c, _ in quantities]
+        if reference is not None:
+            x = np.array([min(p["edges"] for p in good), max(p["edges"] for p in good)])
+            ax.plot(x, reference * x / x[0], color="0.6", lw=1, ls="-.")
+            handles.append(Line2D([], [], color="0.6", lw=1, ls="-.", label="∝ edges"))
+        handles += [Line2D([], [], color="k", marker=looks[k][0], ls=looks[k][1], label=k) for k in keys]
+        ax.legend(handles=handles, fontsize=7, loc=loc)
+        ax.set(xscale="log", yscale="log", xlabel="edges", ylabel=ylabel, title=title)
+        ax.grid(True, which="major", alpha=0.3)
 
-    colours = {"read": "C0", "initialize": "C1", "optimize": "C2", "write": "C3", "wall": "k"}
-    ax = axes[0, 0]
-    for shape in shapes:
-        for key in ("read", "initialize", "optimize", "write"):
-            x, y = series(shape, lambda p, k=key: p["seconds"][k])
-            ax.plot(x, y, marker=markers[shape], ls=styles[shape], color=colours[key], label=f"{shape}: {key}")
-        x, y = series(shape, lambda p: p["wall"])
-        ax.plot(x, y, marker=markers[shape], ls=styles[shape], color="k", label=f"{shape}: whole process")
-    all_x = [p["edges"] for p in points if "error" not in p]
-    reference(ax, all_x, min((p["seconds"]["read"] for p in points if "error" not in p), default=1e-3), "∝ edges")
-    ax.set(xscale="log", yscale="log", xlabel="edges", ylabel="seconds", title="Seconds per phase (one process per point)")
-    ax.legend(fontsize=6, ncol=2)
+    phases = [
+        ("read", "C0", lambda p: p["seconds"]["read"]),
+        ("initialise (chordal)", "C1", lambda p: p["seconds"]["initialize"]),
+        ("optimise", "C2", lambda p: p["seconds"]["optimize"]),
+        ("write", "C3", lambda p: p["seconds"]["write"]),
+        ("whole process", "k", lambda p: p["wall"]),
+    ]
+    smallest_read = min((p["seconds"]["read"] for p in good), default=1e-3)
+    draw(axes[0, 0], phases, "Seconds per phase (one process per point)", "seconds", reference=smallest_read)
 
-    ax = axes[0, 1]
-    for shape in shapes:
-        x, lin = series(shape, lambda p: (p["optimize_split"]["linearize"] + p["optimize_split"]["assemble"]) / max(1, p["iterations"]))
-        ax.plot(x, lin, marker=markers[shape], ls=styles[shape], color="C4", label=f"{shape}: linearise + assemble / iteration")
-        x, fac = series(shape, lambda p: p["optimize_split"]["factorize"] / max(1, p["factorizations"]))
-        ax.plot(x, fac, marker=markers[shape], ls=styles[shape], color="C5", label=f"{shape}: factorise / factorisation")
-        x, setup = series(shape, lambda p: p["optimize_split"]["setup"])
-        ax.plot(x, setup, marker=markers[shape], ls=styles[shape], color="C7", label=f"{shape}: symbolic setup (once)")
-    firsts = [(p["optimize_split"]["linearize"] + p["optimize_split"]["assemble"]) / max(1, p["iterations"]) for p in points if "error" not in p]
-    reference(ax, all_x, min(firsts, default=1e-3), "∝ edges")
-    ax.set(xscale="log", yscale="log", xlabel="edges", ylabel="seconds", title="Inside the optimiser")
-    ax.legend(fontsize=6)
+    def per_iteration(p, *keys_):
+        return sum(p["optimize_split"][k] for k in keys_) / max(1, p["iterations"])
 
+    inside = [
+        ("linearise + assemble, per iteration", "C4", lambda p: per_iteration(p, "linearize", "assemble")),
+        ("factorise, per factorisation", "C5", lambda p: p["optimize_split"]["factorize"] / max(1, p["factorizations"])),
+        ("triangular solves + cost, per iteration", "C6", lambda p: per_iteration(p, "solve")),
+        ("symbolic setup (once)", "C7", lambda p: p["optimize_split"]["setup"]),
+    ]
+    smallest_lin = min((per_iteration(p, "linearize", "assemble") for p in good), default=1e-3)
+    draw(axes[0, 1], inside, "Inside the optimiser", "seconds", reference=smallest_lin)
+
+    memory = [
+        ("read", "C0", lambda p: p["peak_bytes"]["read"] / 2**30),
+        ("initialise", "C1", lambda p: p["peak_bytes"]["initialize"] / 2**30),
+        ("optimise", "C2", lambda p: p["peak_bytes"]["optimize"] / 2**30),
+        ("write", "C3", lambda p: p["peak_bytes"]["write"] / 2**30),
+    ]
     ax = axes[1, 0]
-    for shape in shapes:
-        for key in ("read", "initialize", "optimize", "write"):
-            x, y = series(shape, lambda p, k=key: p["peak_bytes"][k] / 2**30)
-            ax.plot(x, y, marker=markers[shape], ls=styles[shape], color=colours[key], label=f"{shape}: {key}")
+    draw(ax, memory, "Peak resident memory during each phase", "GiB", loc="lower right")
     ax.axhline(MACHINE_MEMORY_GB, color="r", lw=1)
-    ax.text(min(all_x, default=1), MACHINE_MEMORY_GB * 0.8, f"{MACHINE_MEMORY_GB} GB (this machine)", color="r", fontsize=8)
-    ax.set(xscale="log", yscale="log", xlabel="edges", ylabel="peak resident memory during the phase (GiB)", title="Peak memory per phase")
-    ax.legend(fontsize=6, ncol=2)
+    ax.text(min((p["edges"] for p in good), default=1), MACHINE_MEMORY_GB * 0.75, f"{MACHINE_MEMORY_GB} GB: this machine", color="r", fontsize=8)
 
-    ax = axes[1, 1]
-    for shape in shapes:
-        for ordering, colour in (("amd", "C8"), ("metis", "C9")):
-            x, y = series(shape, lambda p, o=ordering: p["fill"][o]["nnz_L_scalar"] / (36 * p["fill"]["nnz_H"]))
-            ax.plot(x, y, marker=markers[shape], ls=styles[shape], color=colour, label=f"{shape}: nnz(L)/nnz(H), {ordering.upper()}")
-    ax.set(xscale="log", yscale="log", xlabel="edges", ylabel="fill-in factor nnz(L) / nnz(H)",
-           title="Why: Cholesky fill-in (CHOLMOD analysis, vertex level)")
-    ax.legend(fontsize=6)
+    fill = [
+        ("nnz(L) / nnz(H), AMD", "C8", lambda p: p["fill"]["amd"]["nnz_L"] / p["fill"]["nnz_H"]),
+        ("nnz(L) / nnz(H), METIS", "C9", lambda p: p["fill"]["metis"]["nnz_L"] / p["fill"]["nnz_H"]),
+        ("flops / (1000·edges), AMD", "C1", lambda p: p["fill"]["amd"]["flops_scalar"] / (1000 * p["edges"])),
+    ]
+    draw(axes[1, 1], fill, "Why: fill-in of the Cholesky factor (CHOLMOD analysis)", "ratio")
 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def markdown_table(points: list[dict]) -> str:
+    """The points as a Markdown table (seconds, memory, fill-in), for docs/benchmarks.md."""
+    lines = [
+        "| series | poses | edges | iterations | read s | initialise s | optimise s | of which: setup / linearise+assemble per it. / factorise per fact. | write s | whole process s | peak GiB: read / initialise / optimise / write | nnz(L) AMD / METIS (×10⁶, est.) | flops per factorisation AMD (est.) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for p in sorted(points, key=lambda p: (series_key(p), p["edges"] if "edges" in p else 0)):
+        if "error" in p:
+            lines.append(f"| {series_key(p)} | {p['size']} | | failed: {p['error'][:80]} |" + " |" * 9)
+            continue
+        split, sec, it = p["optimize_split"], p["seconds"], max(1, p["iterations"])
+        peaks = " / ".join(f"{p['peak_bytes'][k] / 2**30:.2f}" for k in ("read", "initialize", "optimize", "write"))
+        lines.append(
+            f"| {series_key(p)} | {p['vertices']} | {p['edges']} | {p['iterations']} | {sec['read']:.2f} | {sec['initialize']:.2f} | "
+            f"{sec['optimize']:.2f} | {split['setup']:.2f} / {(split['linearize'] + split['assemble']) / it:.2f} / "
+            f"{split['factorize'] / max(1, p['factorizations']):.2f} | {sec['write']:.2f} | {p['wall']:.1f} | "
+            f"{peaks} | "
+            f"{p['fill']['amd']['nnz_L_scalar'] / 1e6:.0f} / {p['fill']['metis']['nnz_L_scalar'] / 1e6:.0f} | "
+            f"{p['fill']['amd']['flops_scalar']:.2g} |"
+        )
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -326,32 +369,41 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=3600, help="seconds before one worker is killed")
     parser.add_argument("--out", default="docs", help="folder for scaling.json and scaling.png (default docs/)")
     parser.add_argument("--merge", action="store_true", help="keep points of scaling.json in --out not re-run now")
+    parser.add_argument("--replot", action="store_true", help="only redraw scaling.png (and the table) from scaling.json in --out")
+    parser.add_argument("--ordering", default="auto", help="the solver's fill-reducing ordering (SolverParams.ordering; default auto)")
     parser.add_argument("--worker", metavar="IN.g2o", help=argparse.SUPPRESS)
     parser.add_argument("--report", help=argparse.SUPPRESS)
     parser.add_argument("--write", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
-        return worker(args.worker, args.report, args.write)
+        return worker(args.worker, args.report, args.write, args.ordering)
 
     from benchmarks.harness import machine_info
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     json_path = out / "scaling.json"
-    previous = json.loads(json_path.read_text())["points"] if args.merge and json_path.is_file() else []
+    previous = json.loads(json_path.read_text())["points"] if (args.merge or args.replot) and json_path.is_file() else []
+    if args.replot and not previous:
+        parser.error(f"--replot: no points in {json_path}")
     points = []
-    for shape in args.shapes:
+    for shape in [] if args.replot else args.shapes:
         sizes = args.sizes or DEFAULT_SIZES[shape]
         for size in sizes:
             if args.max_size and size > args.max_size:
                 continue
             print(f"{shape} {size}", flush=True)
-            points.append(run_point(shape, size, args.timeout, log=lambda s: print(s, flush=True)))
-    done = {(p["shape"], p["size"]) for p in points}
-    points = sorted([p for p in previous if (p["shape"], p["size"]) not in done] + points, key=lambda p: (p["shape"], p["size"]))
-    result = {"machine": machine_info(), "points": points, "slopes_vs_edges": slopes(points)}
+            points.append(run_point(shape, size, args.timeout, log=lambda s: print(s, flush=True), ordering=args.ordering))
+    done = {(series_key(p), p["size"]) for p in points}
+    points = sorted([p for p in previous if (series_key(p), p["size"]) not in done] + points, key=lambda p: (series_key(p), p["size"]))
+    for p in points:  # points saved before the process peak was taken from the phases
+        if "peak_bytes" in p:
+            p["max_rss"] = max([p["max_rss"], *p["peak_bytes"].values()])
+    machine = json.loads(json_path.read_text()).get("machine") if args.replot else machine_info()
+    result = {"machine": machine, "points": points, "slopes_vs_edges": slopes(points)}
     json_path.write_text(json.dumps(result, indent=1, default=str) + "\n")
     plot(points, out / "scaling.png")
+    print(markdown_table(points))
     print(json.dumps(result["slopes_vs_edges"], indent=1))
     print(f"wrote {json_path} and {out / 'scaling.png'}")
     return 0

@@ -51,6 +51,7 @@ __all__ = [
     "grid",
     "garage",
     "generate",
+    "shape_arguments",
     "SHAPES",
     "groundtruth_path",
     "write_dataset",

@@ -111,3 +111,28 @@ def test_dataset_discovery(tmp_path):
     assert harness.count_graph(tmp_path / "c.txt") == (2, 1)
     with pytest.raises(FileNotFoundError):
         harness.user_datasets([str(tmp_path / "missing")])
+
+
+def test_scaling_points_table_and_plot(tmp_path):
+    """Two tiny scaling points end to end (worker process, fill-in analysis), then the table and the figure."""
+    pytest.importorskip("sksparse")
+    pytest.importorskip("matplotlib")
+    from benchmarks import scaling
+
+    points = [scaling.run_point("sphere", size, timeout=120, log=lambda _: None) for size in (64, 144)]
+    for point, side in zip(points, (8, 12)):
+        assert "error" not in point, point
+        assert point["vertices"] == side * side and point["converged"]
+        assert set(point["seconds"]) >= {"read", "initialize", "optimize", "write"}
+        assert all(point["peak_bytes"][k] > 10 * 2**20 for k in ("read", "initialize", "optimize", "write"))
+        assert point["max_rss"] >= max(point["peak_bytes"].values())
+        # Cholesky fill: the factor holds at least the matrix's lower triangle.
+        assert point["fill"]["amd"]["nnz_L"] >= point["fill"]["nnz_H"] and point["fill"]["metis"]["flops"] > 0
+        assert point["factorizations"] >= 1 and point["iterations"] >= 1
+    assert scaling.log_log_slope([1, 10, 100], [2, 20, 200]) == pytest.approx(1.0)
+    slopes = scaling.slopes(points)["sphere"]
+    assert slopes["edges"] == [p["edges"] for p in points]
+    table = scaling.markdown_table(points)
+    assert table.count("\n| sphere |") == 2 and "nnz(L)" in table
+    scaling.plot(points, tmp_path / "scaling.png")
+    assert (tmp_path / "scaling.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -72,6 +72,17 @@ def test_initial_poses_are_composed_noisy_odometry(shape):
     assert np.abs(graph.poses[-1, :3, 3] - data.ground_truth[-1, :3, 3]).max() > 1e-3
 
 
+@pytest.mark.parametrize("steps", [0, 1, 2, 3, 17, 64])
+def test_prefix_product_equals_the_sequential_product(steps):
+    rng = np.random.default_rng(steps)
+    increments = se3.exp(rng.normal(scale=0.5, size=(steps, 6)))
+    first = se3.exp(rng.normal(size=6))
+    expected = [first]
+    for step in increments:
+        expected.append(expected[-1] @ step)
+    np.testing.assert_allclose(synthetic._compose_chain(first, increments), np.array(expected), atol=1e-12)
+
+
 def test_same_seed_gives_identical_files_and_other_seeds_differ(tmp_path):
     paths = []
     for name, seed in (("a", 5), ("b", 5), ("c", 6)):
@@ -206,7 +217,13 @@ def test_bundled_example_is_what_the_documented_command_makes(tmp_path):
     out = tmp_path / "example_sphere.g2o"
     done = _cli(*EXAMPLE_ARGS, "-o", str(out))
     assert done.returncode == 0, done.stderr
-    assert out.read_bytes() == EXAMPLE.read_bytes()
-    assert (tmp_path / "example_sphere_groundtruth.g2o").read_bytes() == synthetic.groundtruth_path(EXAMPLE).read_bytes()
+    # Equal to rounding, not byte for byte: a last-bit change in the Lie core moves the last digit.
+    for made, bundled in ((out, EXAMPLE), (synthetic.groundtruth_path(out), synthetic.groundtruth_path(EXAMPLE))):
+        a, b = read_g2o(made), read_g2o(bundled)
+        assert np.array_equal(a.ids, b.ids)
+        assert np.array_equal(a.edge_from, b.edge_from) and np.array_equal(a.edge_to, b.edge_to)
+        np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.measurements, b.measurements, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(a.information, b.information)
     assert EXAMPLE.stat().st_size < 300_000
     assert 200 <= read_g2o(EXAMPLE).num_vertices <= 400
