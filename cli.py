@@ -182,13 +182,66 @@ def _check_distinct(paths) -> None:
                 raise _UsageError(f"two outputs are the same file: {a} and {b}")
 
 
+_UNUSED_NUMPY_SUBMODULES = frozenset({"f2py", "testing", "ma", "polynomial", "ctypeslib", "rec", "char", "strings", "core", "test"})
+"""Lazily loaded numpy submodules nothing on the optimise path uses (see :func:`_import_scipy_sparse`)."""
+
+
+def _import_scipy_sparse() -> None:
+    """``import scipy.sparse`` without the ~0.1 s scipy 1.17 spends importing numpy.f2py and friends.
+
+    scipy's private array-API namespace (``scipy._lib.array_api_compat.numpy``, imported by
+    ``scipy.sparse``) clones numpy with ``from numpy import *`` plus a ``getattr`` of every name in
+    ``dir(numpy)``, which imports each of numpy's lazily loaded submodules — ``numpy.f2py`` (with
+    charset_normalizer), ``numpy.testing``, ``numpy.ma``, ``numpy.polynomial`` … — none of which
+    the solver, scipy.sparse or CHOLMOD use; in those few milliseconds they cost more than the
+    reading of a 10,000-edge file. So numpy's ``__all__`` and ``__dir__`` leave them out while
+    that clone is made, and are put back right after: numpy itself is untouched, the submodules
+    still import on first use, and scipy's clone merely lacks them (scipy reaches ``xp.testing``
+    only for CuPy and PyTorch arrays). Done by the command-line program only, never by the
+    library, and skipped (a plain import) if numpy is not laid out as expected.
+    """
+    if "scipy.sparse" in sys.modules:
+        return
+    import numpy
+
+    namespace = vars(numpy)
+    lazy = _UNUSED_NUMPY_SUBMODULES & set(getattr(numpy, "__numpy_submodules__", ()))
+    saved_all, saved_dir = namespace.get("__all__"), namespace.get("__dir__")
+    if not lazy or not isinstance(saved_all, list) or not callable(saved_dir):
+        import scipy.sparse  # noqa: F401
+
+        return
+    try:
+        numpy.__all__ = [name for name in saved_all if name not in lazy]
+        numpy.__dir__ = lambda: [name for name in saved_dir() if name not in lazy]
+        import scipy.sparse  # noqa: F401
+    finally:
+        numpy.__all__, numpy.__dir__ = saved_all, saved_dir
+
+
+def _single_threaded_blas() -> None:
+    """Make OpenBLAS start with one thread in this process, unless ``OPENBLAS_NUM_THREADS`` is set.
+
+    Must run before numpy is imported (OpenBLAS reads the variable when it loads). Both OpenBLAS
+    builds in the process — numpy's bundled one and the system one under CHOLMOD — otherwise
+    start a worker thread per core at load, which busy-waits for work while the main thread goes
+    on importing: on the 2-core machine here ``import numpy`` took 0.14 s against 0.09 s with one
+    thread, and a whole ``posegraph optimize`` ~30 ms longer. Nothing on this path wants more:
+    numpy only multiplies small matrices, and the solver runs CHOLMOD's BLAS on one thread anyway
+    (``SolverParams.blas_threads``).
+    """
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def _import_solver_modules() -> None:
     """Import what the read / initialise / optimise phases use, so that their timings are work,
-    not first-use imports (scipy.sparse alone takes ~0.3 s to import)."""
+    not first-use imports. Only those: scipy.sparse.linalg (SuperLU) and scipy.sparse.csgraph
+    (odometry start) import on first use, as they are needed only off the default path."""
     import contextlib
 
-    import scipy.sparse.csgraph  # noqa: F401
-    import scipy.sparse.linalg  # noqa: F401
+    _single_threaded_blas()
+    _import_scipy_sparse()
 
     import posegraph.init  # noqa: F401
     import posegraph.io.g2o  # noqa: F401
@@ -198,11 +251,11 @@ def _import_solver_modules() -> None:
         import sksparse.cholmod  # noqa: F401
 
 
-def _read(path: str, status: _Status, *, require_edges: bool = True):
+def _read(path: str, status: _Status, *, require_edges: bool = True, repair_information: bool = False):
     from posegraph.io.g2o import read_g2o
 
     with _Ticker(status, f"reading {path}"), _Timer() as t:
-        graph = read_g2o(path, require_edges=require_edges)
+        graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information)
     status(f"read {path}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
     return graph, t.seconds
 
@@ -215,6 +268,13 @@ def _require_matplotlib() -> None:
 
 # --------------------------------------------------------------------------------------------
 # optimize
+
+
+def _repair_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--repair-information", action="store_true",
+                   help="replace each information matrix that is not positive semi-definite by the nearest one "
+                        "(Frobenius norm; eigenvalues clipped to 1e-9 times the largest), with one warning, "
+                        "instead of refusing the file")
 
 
 def _solver_options(p: argparse.ArgumentParser) -> None:
@@ -299,22 +359,27 @@ def cmd_optimize(args) -> int:
         _require_matplotlib()
     _check_distinct([args.output, args.report, args.plot])
 
+    _import_solver_modules()  # first: it imports scipy.sparse its own way
     from posegraph.io.g2o import write_g2o
     from posegraph.solve import optimize
     from posegraph.solve.residuals import cost
 
-    _import_solver_modules()
-    graph, seconds_read = _read(args.input, status)
-    file_cost = float(cost(graph))
+    graph, seconds_read = _read(args.input, status, repair_information=args.repair_information)
+    # The cost at the file's poses is printed and reported; with --quiet and no report nothing shows it.
+    file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
     with _Ticker(status, f"initialising ({args.init})"), _Timer() as t_init:
         start = _initial_poses(graph, args)
-    start_cost = float(cost(graph, start)) if args.init != "file" else file_cost
-    status(f"initialised ({args.init}): cost {_fmt_cost(file_cost)} -> {_fmt_cost(start_cost)} "
-           f"({t_init.seconds:.3f} s)")
+    start_cost = None  # with --quiet, the solver's own first evaluation (result.initial_cost) supplies it
+    if not args.quiet:
+        start_cost = float(cost(graph, start)) if args.init != "file" else file_cost
+        status(f"initialised ({args.init}): cost {_fmt_cost(file_cost)} -> {_fmt_cost(start_cost)} "
+               f"({t_init.seconds:.3f} s)")
 
     params = _solver_params(args, callback=None if args.quiet else _iteration_printer(status))
     with _Timer() as t_opt:
         result = optimize(graph, initial=start, params=params)
+    if start_cost is None:
+        start_cost = result.initial_cost
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s)")
 
     seconds = {"read": seconds_read, "initialise": t_init.seconds, "optimise": t_opt.seconds}
@@ -387,7 +452,7 @@ def cmd_compare(args) -> int:
 
     status = _Status(args.quiet)
     _import_solver_modules()
-    graph, seconds_read = _read(args.input, status)
+    graph, seconds_read = _read(args.input, status, repair_information=args.repair_information)
     with _Timer() as t_init:
         start = _initial_poses(graph, args)
     params = _solver_params(args, callback=None if args.quiet else _iteration_printer(status))
@@ -400,8 +465,10 @@ def cmd_compare(args) -> int:
     else:
         gtsam_init, gtsam_initial = args.init, None
     status(f"gtsam: {params.method}, start {'same as posegraph' if gtsam_init == 'given' else args.init}")
+    # With repaired information gtsam gets our model, not the file's matrices.
     theirs = run_gtsam(
-        args.input, graph=graph, init=gtsam_init, initial=gtsam_initial, method=params.method,
+        graph if args.repair_information else args.input, graph=graph, init=gtsam_init, initial=gtsam_initial,
+        method=params.method,
         max_iterations=params.max_iterations, relative_tolerance=params.relative_tolerance,
         absolute_tolerance=params.absolute_tolerance,
     )
@@ -477,7 +544,7 @@ def cmd_verify(args) -> int:
             raise ImportError(f"{exc}; or run verify-jacobians --no-gtsam (finite differences only)") from exc
     graph = None
     if args.input:
-        graph, _ = _read(args.input, _Status(True))
+        graph, _ = _read(args.input, _Status(True), repair_information=args.repair_information)
     checks = verify_all(graph=graph, samples=args.samples, seed=args.seed, use_gtsam=not args.no_gtsam)
     print(format_checks(checks))
     failed = [c for c in checks if not c.passed]
@@ -494,7 +561,7 @@ def cmd_verify(args) -> int:
 def cmd_info(args) -> int:
     from posegraph.report import graph_info
 
-    graph, _ = _read(args.input, _Status(True))
+    graph, _ = _read(args.input, _Status(True), repair_information=args.repair_information)
     info = graph_info(graph)
     if args.json:
         import json
@@ -534,8 +601,8 @@ def cmd_info(args) -> int:
 def cmd_eval(args) -> int:
     from posegraph.evaluate import evaluate, read_trajectory
 
-    estimate_ids, estimate_poses = read_trajectory(args.estimate)
-    reference_ids, reference_poses = read_trajectory(args.reference)
+    estimate_ids, estimate_poses = read_trajectory(args.estimate, repair_information=args.repair_information)
+    reference_ids, reference_poses = read_trajectory(args.reference, repair_information=args.repair_information)
     result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
                       align=not args.no_align, source=args.estimate)
     if result.num_matched < max(result.num_estimate, result.num_reference):
@@ -573,7 +640,8 @@ def cmd_plot(args) -> int:
     from posegraph.plot import plot_trajectories
 
     status = _Status(True)
-    graphs = [_read(path, status, require_edges=False)[0] for path in inputs]
+    graphs = [_read(path, status, require_edges=False, repair_information=args.repair_information)[0]
+              for path in inputs]
     labels = args.labels or [os.path.basename(p) for p in inputs]
     plot_trajectories(args.output, graphs, labels, loop_closures=not args.no_loop_closures, title=args.title)
     return EXIT_OK
@@ -595,7 +663,7 @@ def cmd_export(args) -> int:
     require_open3d()
     from posegraph.atomic import StagedOutputs
 
-    graph, _ = _read(args.input, _Status(True), require_edges=False)
+    graph, _ = _read(args.input, _Status(True), require_edges=False, repair_information=args.repair_information)
     with StagedOutputs() as outputs:
         if args.open3d:
             write_open3d_pose_graph(outputs.stage(args.open3d, suffix=".json"), graph)
@@ -650,6 +718,7 @@ examples:
   posegraph optimize in.g2o -o in.g2o --force      (overwrite the input, atomically)""")
     p.add_argument("input", metavar="IN.g2o", help="input pose graph")
     p.add_argument("-o", "--output", metavar="OUT.g2o", required=True, help="output pose graph")
+    _repair_option(p)
     _solver_options(p)
     p.add_argument("--report", metavar="REPORT.json", help="write costs, iterations, timings and per-iteration "
                    "records as JSON")
@@ -668,6 +737,7 @@ examples:
   posegraph compare sphere2500.g2o --method gn --report compare.json
   posegraph compare garage.g2o --init chordal --gtsam-start own    (gtsam's own InitializePose3)""")
     p.add_argument("input", metavar="IN.g2o", help="input pose graph")
+    _repair_option(p)
     _solver_options(p)
     p.add_argument("--gtsam-start", choices=("same", "own"), default="same",
                    help="start gtsam from posegraph's initial poses (default), or let it start on its own: "
@@ -688,6 +758,7 @@ examples:
   posegraph verify-jacobians sphere2500.g2o --samples 2000
   posegraph verify-jacobians --no-gtsam       (finite differences only)""")
     p.add_argument("input", metavar="IN.g2o", nargs="?", help="also check the Jacobians of this graph's edges")
+    _repair_option(p)
     p.add_argument("--samples", type=_non_negative_int, default=500, metavar="N",
                    help="random samples per quantity (default 500)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -701,6 +772,7 @@ examples:
   posegraph info parking-garage.g2o
   posegraph info sphere2500.g2o --json""")
     p.add_argument("input", metavar="IN.g2o", help="input pose graph")
+    _repair_option(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=cmd_info)
 
@@ -712,6 +784,7 @@ examples:
   posegraph eval optimised.g2o ground-truth.g2o --json > errors.json""")
     p.add_argument("estimate", metavar="EST.g2o", help="estimated poses")
     p.add_argument("reference", metavar="GT.g2o", help="reference (ground-truth) poses")
+    _repair_option(p)
     p.add_argument("--no-align", action="store_true", help="compute ATE without aligning the trajectories")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_eval)
@@ -723,6 +796,7 @@ examples:
   posegraph plot before.g2o after.g2o -o before-after.png --labels before after""")
     p.add_argument("input", metavar="IN.g2o", help="pose graph to draw")
     p.add_argument("more", metavar="MORE.g2o", nargs="*", help="more graphs overlaid")
+    _repair_option(p)
     p.add_argument("-o", "--output", metavar="FIG.png", required=True,
                    help="figure file; its extension picks the format")
     p.add_argument("--labels", nargs="+", metavar="NAME", help="legend names, one per input (default file names)")
@@ -738,6 +812,7 @@ examples:
   posegraph export optimised.g2o --open3d graph.json
   posegraph export optimised.g2o --ply trajectory.ply --loop-closures""")
     p.add_argument("input", metavar="IN.g2o", help="pose graph to export")
+    _repair_option(p)
     p.add_argument("--open3d", metavar="GRAPH.json", help="Open3D pose-graph JSON to write")
     p.add_argument("--ply", metavar="LINES.ply", help="PLY line set of the trajectory to write")
     p.add_argument("--loop-closures", action="store_true", help="also put loop-closure edges in the PLY")

@@ -306,13 +306,15 @@ def _is_gtsam_edge_file(path: str) -> bool:
     return has_edge3
 
 
-def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
+def read_trajectory(path, *, repair_information: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Vertex ids ``(n,)`` and poses ``(n, 4, 4)`` of a trajectory file.
 
     A g2o file is read with :func:`posegraph.io.g2o.read_g2o` (vertices alone are enough). A file
     without any ``VERTEX`` line that the g2o reader refuses — gtsam's own format with ``EDGE3 i j x y z roll pitch yaw`` lines,
     as in ``sphere2500_groundtruth.txt`` — is read with ``gtsam.readG2o`` (gtsam's reader, so its
     angle convention is gtsam's) and its poses are :func:`chain_odometry` of its edges.
+    ``repair_information`` is passed to ``read_g2o`` (the information matrices do not enter the
+    poses, but a file with indefinite ones is refused without it).
     """
     import os
 
@@ -321,7 +323,7 @@ def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
 
     name = os.fspath(path)
     try:
-        graph = read_g2o(name, require_edges=False)
+        graph = read_g2o(name, require_edges=False, repair_information=repair_information)
     except GraphError as err:
         if not _is_gtsam_edge_file(name):
             raise

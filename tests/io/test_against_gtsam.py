@@ -114,14 +114,4 @@ def test_rejected_dataset_has_indefinite_information(shared_dataset, name):
     assert not np.allclose(_information(factor), matrix[np.ix_(permutation, permutation)])
 
 
-def test_gtsam_sphere2500_txt_is_refused_clearly(gtsam_example_file):
-    """gtsam's bundled sphere2500.txt is EDGE3 lines only (Euler angles, no vertices): not our format.
-
-    gtsam reads its factors but no initial values, so there is nothing to compare; the shared
-    sphere2500.g2o is the same benchmark in g2o's format and is compared above.
-    """
-    path = gtsam_example_file("sphere2500.txt")
-    with pytest.raises(GraphError, match="no VERTEX_SE3:QUAT lines.*EDGE3"):
-        read_g2o(path)
-    factors, values = gtsam.readG2o(str(path), True)
-    assert values.size() == 0 and factors.size() > 0
+# gtsam's EDGE3 files (sphere2500.txt, with no vertex lines): see test_g2o_edge3.py.
