@@ -15,6 +15,7 @@ written, with a warning —, costs disagree, a check over tolerance); 2 bad inpu
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import time
@@ -250,6 +251,12 @@ def _import_solver_modules() -> None:
     with contextlib.suppress(ImportError):
         import sksparse.cholmod  # noqa: F401
 
+    # The ~30,000 objects these imports made live as long as the process. Frozen (moved out of the
+    # garbage collector's generations), they are no longer traversed by every full collection, nor
+    # collected one by one when the interpreter shuts down: that teardown took ~30 ms of every
+    # `posegraph optimize` on torus3D, ~12 ms frozen. Objects made later are collected as usual.
+    gc.freeze()
+
 
 def _read(path: str, status: _Status, *, require_edges: bool = True, repair_information: bool = False):
     from posegraph.io.g2o import read_g2o
@@ -287,7 +294,7 @@ def _solver_options(p: argparse.ArgumentParser) -> None:
                    help="iteration cap (default 100); reaching it gives exit status 1")
     p.add_argument("--relative-tolerance", type=_non_negative_float, default=None, metavar="TOL",
                    help="stop when an iteration lowers the cost by at most this fraction "
-                        "(default: the solver's, 1e-10)")
+                        "(default: the solver's, 1e-7)")
     p.add_argument("--absolute-tolerance", type=_non_negative_float, default=None, metavar="TOL",
                    help="stop when an iteration lowers the cost by at most this much "
                         "(default: the solver's, 1e-12)")

@@ -50,6 +50,49 @@ def test_connected_components(graph):
     assert groups == {frozenset({10, 20, 30}), frozenset({40, 50}), frozenset({60})}
 
 
+def edge_graph(n, edge_from, edge_to):
+    m = len(edge_from)
+    return PoseGraph(
+        ids=np.arange(n), poses=np.tile(np.eye(4), (n, 1, 1)),
+        edge_from=np.asarray(edge_from, dtype=np.int64), edge_to=np.asarray(edge_to, dtype=np.int64),
+        measurements=np.tile(np.eye(4), (m, 1, 1)), information=np.tile(np.eye(6), (m, 1, 1)),
+    )
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_connected_components_equal_scipys_labels(seed):
+    """Same count and the same labels (numbered by each component's first vertex) as csgraph's,
+    on random graphs with isolated vertices, repeated edges, self-loops and both edge directions."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as scipy_components
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 80))
+    m = int(rng.integers(0, 2 * n))
+    i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+    count, labels = connected_components(edge_graph(n, i, j))
+    expected_count, expected = scipy_components(coo_matrix((np.ones(m), (i, j)), shape=(n, n)), directed=False)
+    assert count == expected_count
+    np.testing.assert_array_equal(labels, expected)
+
+
+@pytest.mark.parametrize("order", ["forward", "backward", "shuffled"])
+def test_connected_components_of_long_chains(order):
+    """A 20,000-vertex chain (the worst case for label propagation), edges in any order: one
+    component, and two once the middle edge is cut."""
+    n = 20_000
+    i = np.arange(n - 1)
+    if order == "backward":
+        i = i[::-1]
+    elif order == "shuffled":
+        i = np.random.default_rng(0).permutation(i)
+    assert connected_components(edge_graph(n, i, i + 1))[0] == 1
+    keep = i != n // 2
+    count, labels = connected_components(edge_graph(n, i[keep], i[keep] + 1))
+    assert count == 2
+    assert (labels[: n // 2 + 1] == 0).all() and (labels[n // 2 + 1 :] == 1).all()
+
+
 def test_component_anchors_are_smallest_ids_of_unfixed_components(graph):
     anchors = component_anchors(graph)
     # A is anchored at id 10 (index 1, not the first vertex of the file); B has a FIX; C anchors itself.

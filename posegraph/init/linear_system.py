@@ -24,8 +24,9 @@ analyses it once — the CSC pattern, where each per-edge block entry lands in i
 symbolic factorisation — and each :meth:`~RelativeLeastSquares.solve` only refills the values
 (the rotation and translation stages share one analysis).
 
-This module deliberately depends on scipy (and optionally scikit-sparse) only, not on
-:mod:`posegraph.solve`: initialisation comes before the solver in the data flow.
+This module deliberately depends on scipy (and optionally scikit-sparse) and
+:mod:`posegraph.native_threads` only, not on :mod:`posegraph.solve`: initialisation comes before the
+solver in the data flow.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ import warnings
 
 import numpy as np
 import scipy.sparse as sp
+
+from posegraph.native_threads import NativeThreads
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS"]
 
@@ -63,12 +66,29 @@ class RelativeLeastSquares:
         :data:`SMALL_SYSTEM` unknowns when it imports, else SuperLU — and SuperLU too when CHOLMOD
         reports the matrix as not positive definite (it can, at round-off level, when the weights
         span many decades) or returns non-finite numbers.
+    threads : int or None, default 1
+        Threads of the system OpenBLAS and OpenMP under CHOLMOD during its work
+        (:class:`posegraph.native_threads.NativeThreads`; None leaves them as they are). One, as in
+        the solver: CHOLMOD's four OpenMP threads per loop cost more than they give on a shared
+        2-core machine (the chordal start of torus3D: 0.120 s with them, 0.102 s without; sphere2500
+        0.055 s and 0.046 s).
     """
 
-    def __init__(self, held: np.ndarray, edge_from: np.ndarray, edge_to: np.ndarray, *, linear_solver: str = "auto"):
+    def __init__(
+        self,
+        held: np.ndarray,
+        edge_from: np.ndarray,
+        edge_to: np.ndarray,
+        *,
+        linear_solver: str = "auto",
+        threads: int | None = 1,
+    ):
         if linear_solver not in LINEAR_SOLVERS:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
+        if threads is not None and (int(threads) != threads or threads < 1):
+            raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
         self.linear_solver = linear_solver
+        self.threads = threads
         self.held = np.asarray(held, dtype=bool)
         self.edge_from = np.asarray(edge_from, dtype=np.int64)
         self.edge_to = np.asarray(edge_to, dtype=np.int64)
@@ -80,6 +100,7 @@ class RelativeLeastSquares:
         self.free_from, self.free_to = free[i], free[j]
         self.both_free = self.free_from & self.free_to
         self._symbolic = None  # CHOLMOD analysis, made at the first factorisation
+        self._threads = None  # NativeThreads, made at the first factorisation
         self._analyse_pattern()
 
     def _analyse_pattern(self) -> None:
@@ -186,7 +207,8 @@ class RelativeLeastSquares:
 
                 def solve(rhs: np.ndarray) -> np.ndarray:
                     if not fallback:
-                        solution = factor(rhs)
+                        with self._native_threads():
+                            solution = factor(rhs)
                         if self.linear_solver == "cholmod" or np.all(np.isfinite(solution)):
                             return solution
                         fallback.append(_superlu_solver(matrix))
@@ -194,6 +216,12 @@ class RelativeLeastSquares:
 
                 return solve
         return _superlu_solver(matrix)
+
+    def _native_threads(self) -> NativeThreads:
+        """The thread setting for CHOLMOD's calls, made once (after ``sksparse`` has been imported)."""
+        if self._threads is None:
+            self._threads = NativeThreads(self.threads)
+        return self._threads
 
     def _cholmod_factor(self, matrix: sp.csc_matrix):
         """CHOLMOD's factor of ``matrix`` (callable), or None when unavailable or not positive definite."""
@@ -205,7 +233,7 @@ class RelativeLeastSquares:
                 raise
             return None
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), self._native_threads():
                 # CHOLMOD warns (rather than raises) on some tiny pivots: treat that as a failure.
                 warnings.simplefilter("error", CholmodWarning)
                 warnings.simplefilter("ignore", CholmodTypeConversionWarning)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
@@ -62,6 +61,10 @@ def spanning_tree(graph: PoseGraph, tree: str = "bfs") -> tuple[np.ndarray, np.n
     """
     if tree not in TREES:
         raise ValueError(f"tree must be one of {TREES}, got {tree!r}")
+    # Imported here, not at the top: csgraph pulls in scipy.sparse.linalg and scipy.linalg (~40 ms),
+    # which the default (chordal) start of every `posegraph optimize` does not need.
+    from scipy.sparse import csgraph
+
     require_usable(graph)
     n = graph.num_vertices
     held = held_vertices(graph)

@@ -10,9 +10,11 @@ Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.H
     ordering, elimination tree, supernodes) runs once; each iteration only
     ``Factor.cholesky_inplace``. It reads the lower triangle directly. Ordering: AMD by default
     (on the pose graphs here it factors as fast as METIS / nested dissection and analyses
-    several times faster; figures in ``docs/solver.md``). The system OpenBLAS under CHOLMOD runs
-    one thread during the factorisation by default (:class:`BlasThreads`): for these sizes on a
-    shared 2-core machine that is 2–3× faster than two threads contending for the cores.
+    several times faster; figures in ``docs/solver.md``). The system OpenBLAS and the OpenMP loops
+    under CHOLMOD run one thread during the factorisation and solves by default
+    (:class:`~posegraph.native_threads.NativeThreads`): for these sizes on a shared 2-core machine
+    that is 1.25× (idle) to 2.6× (other jobs running) faster than CHOLMOD's own four OpenMP threads
+    and two BLAS threads.
 ``"scipy"``
     Needs nothing beyond scipy wheels. SuperLU with no pivoting (``diag_pivot_thresh=0``,
     ``SymmetricMode``) on a matrix permuted once per graph: SuperLU's minimum-degree ordering of
@@ -35,6 +37,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
+from posegraph.native_threads import NativeThreads
 from posegraph.solve.sparsity import BLOCK, HessianPattern, lower_csc
 
 __all__ = [
@@ -42,6 +45,7 @@ __all__ = [
     "LinearSolver",
     "CholmodSolver",
     "BlasThreads",
+    "NativeThreads",
     "ScipySolver",
     "cholmod_available",
     "make_linear_solver",
@@ -52,55 +56,8 @@ class NotPositiveDefiniteError(ArithmeticError):
     """The (damped) normal-equation matrix could not be factorised as positive definite."""
 
 
-def _system_openblas():
-    """The ``openblas_{get,set}_num_threads`` entry points of the OpenBLAS CHOLMOD runs on, or None.
-
-    CHOLMOD (scikit-sparse) uses the *system* BLAS, a different library from the one bundled in
-    numpy's and scipy's wheels (whose symbols are prefixed ``scipy_openblas``). It is found among
-    the libraries loaded in this process (``/proc/self/maps``, Linux only) by the unprefixed symbol.
-    """
-    import ctypes
-
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "blas" in line.rsplit("/", 1)[-1].lower()}
-    except OSError:
-        return None
-    for path in sorted(paths):
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        if hasattr(library, "openblas_set_num_threads") and hasattr(library, "openblas_get_num_threads"):
-            return library
-    return None
-
-
-class BlasThreads:
-    """Context manager: the system OpenBLAS runs ``threads`` threads inside, its own setting after.
-
-    A no-op when ``threads`` is None or no system OpenBLAS is loaded (reference BLAS, MKL, macOS).
-    """
-
-    def __init__(self, threads: int | None):
-        self.threads = threads
-        self._library = _system_openblas() if threads is not None else None
-        self._saved = None
-
-    @property
-    def active(self) -> bool:
-        return self._library is not None
-
-    def __enter__(self):
-        if self._library is not None:
-            self._saved = int(self._library.openblas_get_num_threads())
-            self._library.openblas_set_num_threads(int(self.threads))
-        return self
-
-    def __exit__(self, *exc):
-        if self._library is not None and self._saved is not None:
-            self._library.openblas_set_num_threads(self._saved)
-        return False
+BlasThreads = NativeThreads
+"""The former name of :class:`posegraph.native_threads.NativeThreads` (which now also covers OpenMP)."""
 
 
 def cholmod_available() -> bool:
@@ -144,8 +101,8 @@ class CholmodSolver(LinearSolver):
             warnings.simplefilter("ignore", cholmod.CholmodTypeConversionWarning)
             self._factor = cholmod.analyze(structure, mode="supernodal", ordering_method=ordering)
         self.ordering = ordering
-        self._threads = BlasThreads(blas_threads)
-        threads = f", {blas_threads} BLAS thread{'s' if blas_threads != 1 else ''}" if self._threads.active else ""
+        self._threads = NativeThreads(blas_threads)
+        threads = f", {blas_threads} thread{'s' if blas_threads != 1 else ''}" if self._threads.active else ""
         self.name = f"cholmod (supernodal, {ordering}{threads})"
 
     def factorize(self, data: np.ndarray) -> None:

@@ -49,8 +49,15 @@ class SolverParams:
     cost_tolerance: float = 0.0
     """Stop when the cost is at most this (gtsam's ``errorTol``)."""
 
-    initial_lambda: float = 1e-5
-    """LM: initial damping λ (gtsam's ``lambdaInitial``, same default)."""
+    initial_lambda: float = 1e-12
+    """LM: initial damping λ (gtsam's ``lambdaInitial``, there 1e-5). Small, i.e. LM starts as
+    Gauss-Newton and damps only after a step has failed (which the line search first tries to
+    shorten): even a relative ``λ·diag(H)`` of 1e-5 slows the weakly determined directions of
+    ill-conditioned graphs. From the chordal start, 1e-12 instead of 1e-5 took parking-garage from
+    7 factorisations to 3, sphere2500 from 4 to 3, synthetic hard graphs 21 and 24 from 12 and 11
+    to 4 and 5, roll-blind 32 from 95 to 71, and never more; from the file's poses parking-garage
+    from 7 to 4 and otherwise the same, except roll-blind 32 from the ground truth (32 to 42). Every
+    run ends at the same optimum (within 2e-8). Pass 1e-5 for gtsam's behaviour."""
 
     lambda_factor: float = 10.0
     """LM with ``lambda_update="fixed"``: λ is multiplied by it after a rejected step and divided by it
@@ -96,6 +103,16 @@ class SolverParams:
     """Armijo constant ``c₁`` of the line search, and of Gauss-Newton's full-step test when
     ``line_search`` is on (without it GN accepts any step that does not raise the cost)."""
 
+    reuse_factorization: bool = True
+    """Near the optimum (after an accepted full step that decreased the cost by less than 10⁴ times
+    the tolerances), first solve the new linearisation's system with the factorisation that step
+    came from: H has barely changed, so that step is nearly the Gauss-Newton step. When its
+    predicted decrease (under the new H) is already within the convergence tolerances and its gain
+    ratio exceeds ``min_gain_ratio``, it is taken — its record has ``attempts == 0`` — and the run
+    usually ends there, one factorisation earlier than it would (torus3D from the chordal start: 3
+    factorisations instead of 4, final cost equal to 2e-12). Otherwise the system is factorised as
+    usual, after one triangular solve spent in vain."""
+
     diagonal_damping: bool = True
     """LM: damp with λ·diag(H) (Marquardt, scale invariant; diagonal clamped to
     [``min_diagonal``, ``max_diagonal``] as gtsam does) if True, else with λ·I (gtsam's default,
@@ -117,10 +134,12 @@ class SolverParams:
     ``"auto"`` (the one measured fastest on pose graphs, see ``docs/solver.md``). Ignored by ``"scipy"``."""
 
     blas_threads: Optional[int] = 1
-    """Threads of the system OpenBLAS during CHOLMOD's factorisation (restored afterwards); None
-    leaves OpenBLAS's own setting. One thread measured 2–3× faster than two on the 2-core machine
-    here, where other processes compete for the cores (``docs/solver.md``); raise it on a big, idle
-    machine with large graphs."""
+    """Threads of the native code under CHOLMOD during its factorisations and solves (restored
+    afterwards): the system OpenBLAS's, and with 1 also CHOLMOD's OpenMP loops, which otherwise ask
+    for four threads each (:mod:`posegraph.native_threads`). None leaves both as they are. On the
+    2-core machine here one thread factorised torus3D in 0.071 s against 0.089 s as CHOLMOD comes
+    when the machine was idle, and 0.069 s against 0.18 s while other jobs ran; raise it on a big,
+    idle machine with large graphs."""
 
     callback: Optional[Callable[..., None]] = None
     """Called with each :class:`~posegraph.solve.result.IterationRecord` as it is made (e.g. to print

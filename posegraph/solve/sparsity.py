@@ -118,46 +118,42 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     nnz = int(indptr[-1])
     if nnz > np.iinfo(np.int32).max:
         raise ValueError("system too large for 32-bit sparse indices")
+    column_start = indptr[:-1].reshape(p, BLOCK)  # data position where column 6c+q begins
 
-    def slot(r, c, pr, qc):
-        """Data positions of entries (row 6r+pr, col 6c+qc) with r >= c (broadcast arrays)."""
-        start = indptr[BLOCK * c + qc]
-        diag = r == c
-        # position s of block (r, c) among column c's off-diagonal blocks
-        k = np.searchsorted(key, c * stride + r)
-        s = k - off_start[c]
-        return np.where(diag, start + pr - qc, start + (BLOCK - qc) + BLOCK * s + pr)
+    # Entry (row a, col b) of a 6×6 block, as index a·6+b of its row-major ravel: the 21 stored
+    # entries of a diagonal block (a >= b), and all 36 of an off-diagonal one.
+    pp, qq = np.meshgrid(q, q, indexing="ij")
+    lower = (pp >= qq).ravel()
+    low_row, low_col = pp.ravel()[lower], qq.ravel()[lower]
+    full_row, full_col = pp.ravel(), qq.ravel()
+    transpose = (full_col * BLOCK + full_row)  # entry (a, b) of Bᵀ is entry (b, a) of B
+    # Data positions, one row per block: diagonal block of variable c (21 entries: its column 6c+b
+    # starts with row 6c+b), and the s-th off-diagonal block of block column c (36 entries: column
+    # 6c+b holds it after its 6−b diagonal-block rows, at 6·s + a).
+    diagonal_slots = column_start[:, low_col] + (low_row - low_col)  # (p, 21)
+    rank = np.arange(key.size) - off_start[off_col]  # s
+    off_slots = column_start[off_col][:, full_col] + (BLOCK - full_col) + BLOCK * rank[:, None] + full_row  # (k, 36)
 
-    # row indices: evaluate every stored slot's row by construction
     indices = np.empty(nnz, dtype=np.int64)
-    cols = np.arange(p)
-    # diagonal blocks
-    pp, qq = np.meshgrid(q, q, indexing="ij")  # pp row, qq col within the block
-    lower = pp >= qq
-    dpos = slot(cols[:, None], cols[:, None], pp[lower][None, :], qq[lower][None, :])
-    indices[dpos] = (BLOCK * cols[:, None] + pp[lower][None, :])
-    if key.size:
-        opos = slot(off_row[:, None], off_col[:, None], pp.ravel()[None, :], qq.ravel()[None, :])
-        indices[opos] = BLOCK * off_row[:, None] + pp.ravel()[None, :]
+    indices[diagonal_slots] = BLOCK * np.arange(p)[:, None] + low_row
+    indices[off_slots] = BLOCK * off_row[:, None] + full_row
     diagonal = indptr[:-1].copy()  # diagonal entry is first in each column
 
-    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij]
+    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij], raveled per edge
     rows_list, cols_list = [], []
-    flat = np.arange(m * 3 * 36, dtype=np.int64).reshape(m, 3, BLOCK, BLOCK)
+    edge_base = 3 * BLOCK * BLOCK * np.arange(m, dtype=np.int64)[:, None]
     for which, variable in enumerate((ci, cj)):  # H_ii, then H_jj: lower halves of diagonal blocks
         sel = variable >= 0
         if np.any(sel):
-            c = variable[sel][:, None]
-            rows_list.append(slot(c, c, pp[lower][None, :], qq[lower][None, :]).ravel())
-            cols_list.append(flat[sel, which][:, lower].ravel())
+            rows_list.append(diagonal_slots[variable[sel]].ravel())
+            cols_list.append((edge_base[sel] + which * BLOCK * BLOCK + np.flatnonzero(lower)).ravel())
     # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci).
     if np.any(both):
-        a, b = ci[both][:, None], cj[both][:, None]
-        pr, qc = pp.ravel()[None, :], qq.ravel()[None, :]
-        below = a > b
-        pos = slot(np.maximum(a, b), np.minimum(a, b), np.where(below, pr, qc), np.where(below, qc, pr))
-        rows_list.append(pos.ravel())
-        cols_list.append(flat[both, 2].reshape(-1, 36).ravel())
+        a, b = ci[both], cj[both]
+        block = np.searchsorted(key, np.minimum(a, b) * stride + np.maximum(a, b))
+        entry = np.where((a > b)[:, None], np.arange(BLOCK * BLOCK), transpose)  # (e, 36): H_ij entry -> block entry
+        rows_list.append(np.take_along_axis(off_slots[block], entry, axis=1).ravel())
+        cols_list.append((edge_base[both] + 2 * BLOCK * BLOCK + np.arange(BLOCK * BLOCK)).ravel())
     rows = np.concatenate(rows_list) if rows_list else np.zeros(0, np.int64)
     colsel = np.concatenate(cols_list) if cols_list else np.zeros(0, np.int64)
     hessian_scatter = sp.csr_matrix(

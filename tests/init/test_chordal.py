@@ -59,6 +59,30 @@ def test_noise_free_measurements_give_the_truth_in_the_gauge(name, graph, truth,
     np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=0, atol=1e-9)
 
 
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_cholmod_thread_setting_changes_nothing_but_speed():
+    """RelativeLeastSquares runs CHOLMOD with one thread by default (posegraph.native_threads); any
+    setting gives the same solution, and a nonsense one is refused."""
+    from posegraph.graph import held_vertices
+    from posegraph.init.linear_system import RelativeLeastSquares
+
+    graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)  # above SMALL_SYSTEM: CHOLMOD
+    rotations = {}
+    for threads in (1, 2, None):
+        problem = RelativeLeastSquares(
+            held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver="cholmod", threads=threads
+        )
+        rotations[threads] = problem.solve(
+            graph.poses[:, :3, :3], transfer=graph.measurements[:, :3, :3].transpose(0, 2, 1),
+            weight=np.broadcast_to(np.eye(3), (graph.num_edges, 3, 3)),
+        )
+    np.testing.assert_allclose(rotations[2], rotations[1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rotations[None], rotations[1], rtol=0, atol=1e-12)
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="threads"):
+            RelativeLeastSquares(held_vertices(graph), graph.edge_from, graph.edge_to, threads=bad)
+
+
 def test_without_scikit_sparse_auto_falls_back_to_scipy(monkeypatch):
     # 600 vertices: 1797 unknowns, above the size where "auto" would pick CHOLMOD.
     graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)

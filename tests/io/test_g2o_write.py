@@ -157,6 +157,39 @@ def test_file_layout_vertices_fix_edges_in_graph_order(tmp_path):
     assert float(rows[5][10 + 15]) == graph.information[0, 0, 0]  # entry 16 of 21 is g2o (3,3): rotation x-x
 
 
+@pytest.mark.parametrize("shared", ["every edge", "some values", "nothing"])
+def test_information_entries_are_each_written_as_their_repr(shared, tmp_path):
+    """The writer formats each distinct information value once (and one text when all edges share
+    one matrix): the text must still be every entry's own repr, −0.0 keeping its sign."""
+    rng = np.random.default_rng(6)
+    graph = random_graph(rng, n=5, m=8)
+    information = graph.information.copy()
+    if shared == "every edge":
+        information[:] = information[0]
+    elif shared == "some values":
+        information = np.round(information, 1)  # few distinct values, repeated across edges
+    information += 10.0 * np.eye(6)  # stays positive definite with an entry zeroed below
+    information[:, 1, 4] = information[:, 4, 1] = -0.0  # an off-diagonal entry
+    graph = PoseGraph(
+        ids=graph.ids, poses=graph.poses, edge_from=graph.edge_from, edge_to=graph.edge_to,
+        measurements=graph.measurements, information=information, fixed=graph.fixed,
+    )
+    g2o_order = information[:, [3, 4, 5, 0, 1, 2]][:, :, [3, 4, 5, 0, 1, 2]]
+    upper = g2o_order[:, np.triu_indices(6)[0], np.triu_indices(6)[1]]
+    edge_rows = [line.split() for line in format_g2o(graph).splitlines() if line.startswith("EDGE_SE3:QUAT")]
+    assert [row[10:] for row in edge_rows] == [[repr(x) for x in entries] for entries in upper.tolist()]
+    negative_zero = (upper == 0) & np.signbit(upper)
+    assert negative_zero.sum(axis=1).min() == 1
+    assert all(
+        [row[10 + k] for k in np.flatnonzero(marks)] == ["-0.0"] * int(marks.sum())
+        for row, marks in zip(edge_rows, negative_zero)
+    )
+    write_g2o(tmp_path / "out.g2o", graph)
+    again = read_quietly(tmp_path / "out.g2o")
+    np.testing.assert_array_equal(again.information, information)
+    np.testing.assert_array_equal(np.signbit(again.information), np.signbit(information))
+
+
 def test_refuses_to_overwrite_the_input(tmp_path):
     source = tmp_path / "in.g2o"
     write_g2o(source, random_graph(np.random.default_rng(5)))

@@ -182,7 +182,9 @@ def test_records_are_consistent_and_lm_cost_never_increases():
     assert all(b <= a for a, b in zip(costs, costs[1:]))
     for before, record in zip(costs, result.records):
         assert record.cost_decrease == pytest.approx(before - record.cost, abs=1e-12)
-        assert record.seconds >= 0 and record.attempts >= 1
+        assert record.seconds >= 0
+        # attempts == 0: the step came from the previous iteration's factorisation (reuse_factorization)
+        assert record.attempts >= 1 or (record.attempts == 0 and record.seconds_factorize == 0 and record.accepted)
     assert result.final_cost == result.records[-1].cost
     assert result.seconds_total >= result.seconds_linearize + result.seconds_factorize
 
@@ -267,3 +269,54 @@ def test_gauss_newton_reports_a_singular_system():
     assert gn.termination == "linear system not positive definite" and not gn.converged
     lm = optimize(graph, initial="file", params=SolverParams(method="lm"))  # damping copes
     assert lm.converged and lm.final_cost < 1e-3 * lm.initial_cost
+
+
+def factorizations(result) -> int:
+    return sum(record.attempts for record in result.records)
+
+
+@pytest.mark.parametrize("method", ["lm", "gn"])
+@pytest.mark.parametrize("linear_solver", ["scipy", "auto"])
+def test_reusing_the_last_factorization_ends_one_factorization_earlier_at_the_same_optimum(method, linear_solver):
+    graph = synthetic_graph(3, n=40, loops=30)
+    params = dict(method=method, linear_solver=linear_solver)
+    fresh = optimize(graph, initial="file", params=SolverParams(reuse_factorization=False, **params))
+    reused = optimize(graph, initial="file", params=SolverParams(**params))
+    assert fresh.converged and reused.converged
+    assert all(record.attempts >= 1 for record in fresh.records)
+    # The last iteration solved with the previous factorisation and ended the run.
+    last = reused.records[-1]
+    assert (last.attempts, last.seconds_factorize, last.accepted, last.step_scale) == (0, 0.0, True, 1.0)
+    assert last.lambda_ == reused.records[-2].lambda_  # the damping that factorisation was made with
+    assert all(record.attempts >= 1 for record in reused.records[:-1])
+    assert factorizations(reused) == factorizations(fresh) - 1
+    assert reused.iterations == fresh.iterations
+    # That step met the convergence test: its decrease was within the tolerance, like the fresh run's last.
+    assert last.cost_decrease <= SolverParams().relative_tolerance * reused.records[-2].cost
+    assert reused.final_cost == pytest.approx(fresh.final_cost, rel=1e-9)
+    assert reused.final_cost == pytest.approx(cost(graph, reused.poses), rel=1e-12)
+    costs = [reused.initial_cost] + [record.cost for record in reused.records]
+    assert all(b <= a for a, b in zip(costs, costs[1:]))
+
+
+def test_the_previous_factorization_is_not_tried_far_from_the_optimum(monkeypatch):
+    """The reuse is attempted only after a step whose decrease was within REUSE_WINDOW × the
+    tolerances, and its step is taken only if it ends the run: early iterations all factorise."""
+    import posegraph.solve.optimizer as optimizer_module
+
+    calls = []
+    original = optimizer_module._reused_factor_step
+
+    def spy(*args):
+        found = original(*args)
+        calls.append(found is not None)
+        return found
+
+    monkeypatch.setattr(optimizer_module, "_reused_factor_step", spy)
+    graph = synthetic_graph(3, n=40, loops=30)
+    result = optimize(graph, initial="file")
+    decreases = [r.cost_decrease / (r.cost + r.cost_decrease) for r in result.records]
+    near = [d <= optimizer_module.REUSE_WINDOW * SolverParams().relative_tolerance for d in decreases]
+    assert len(calls) == sum(near[:-1])  # one attempt after each accepted step inside the window
+    assert calls[-1] and not any(calls[:-1])  # only the last attempt finished the run
+    assert [r.attempts for r in result.records].count(0) == 1

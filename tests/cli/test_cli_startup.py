@@ -1,0 +1,89 @@
+"""What `posegraph optimize` does to start fast: lean imports, one BLAS thread, frozen imports, and
+the same results and report with --quiet (where it skips the costs nobody sees)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from tests.cli.conftest import PROJECT_ROOT, run_cli
+
+
+def run_python(code: str, **env) -> subprocess.CompletedProcess:
+    environment = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    environment.update(env)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, cwd=PROJECT_ROOT,
+        env=environment, timeout=120,
+    )
+
+
+def test_solver_imports_leave_out_what_the_default_path_does_not_use():
+    proc = run_python(
+        """
+        import gc, os, sys
+        import cli
+        cli._import_solver_modules()
+        unused = ["numpy.f2py", "numpy.testing", "numpy.ma", "numpy.polynomial", "scipy.sparse.csgraph",
+                  "scipy.sparse.linalg", "scipy.linalg"]
+        print("loaded", [name for name in unused if name in sys.modules])
+        import numpy, scipy.sparse
+        # numpy is as it was: its full namespace, and the lazily loaded submodules still load.
+        print("all", all(name in numpy.__all__ for name in ("f2py", "testing", "ma")), "testing" in dir(numpy))
+        import numpy.testing
+        numpy.testing.assert_array_equal(numpy.arange(3), [0, 1, 2])
+        matrix = scipy.sparse.csr_matrix(numpy.eye(3))
+        print("sparse", (matrix @ numpy.ones(3)).tolist())
+        print("threads", os.environ.get("OPENBLAS_NUM_THREADS"), "frozen", gc.get_freeze_count() > 1000)
+        """
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "loaded []"
+    assert lines[1] == "all True True"
+    assert lines[2] == "sparse [1.0, 1.0, 1.0]"
+    assert lines[3] == "threads 1 frozen True"
+
+
+def test_an_explicit_openblas_thread_count_is_kept():
+    proc = run_python(
+        """
+        import os, cli
+        cli._import_solver_modules()
+        print(os.environ["OPENBLAS_NUM_THREADS"])
+        """,
+        OPENBLAS_NUM_THREADS="2",
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "2"
+
+
+def test_quiet_runs_report_the_same_costs(tmp_path, shared_dataset):
+    """With --quiet the start cost comes from the solver's first evaluation instead of a separate one;
+    the report must not notice, and the written result must be the same file."""
+    source = shared_dataset("smallGrid3D")
+    reports, outputs = {}, {}
+    for mode, flags in (("loud", []), ("quiet", ["--quiet"])):
+        outputs[mode], reports[mode] = tmp_path / f"{mode}.g2o", tmp_path / f"{mode}.json"
+        run = run_cli("optimize", source, "-o", outputs[mode], "--report", reports[mode], *flags)
+        assert run.returncode == 0, run.stderr
+    loud, quiet = (json.loads(reports[mode].read_text()) for mode in ("loud", "quiet"))
+    for key in ("file_cost", "start_cost", "initial_cost", "final_cost", "iterations"):
+        assert quiet[key] == loud[key], key
+    assert quiet["start_cost"] == quiet["initial_cost"]
+    assert outputs["quiet"].read_text() == outputs["loud"].read_text()
+
+
+@pytest.mark.parametrize("report", [False, True])
+def test_quiet_without_a_report_prints_nothing(tmp_path, shared_dataset, report):
+    extra = ["--report", tmp_path / "r.json"] if report else []
+    run = run_cli("optimize", shared_dataset("tinyGrid3D"), "-o", tmp_path / "out.g2o", "--quiet", *extra)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout == "" and run.stderr_lines == []
+    if report:
+        assert json.loads((tmp_path / "r.json").read_text())["file_cost"] > 0
