@@ -138,18 +138,10 @@ def test_translations_minimise_the_true_cost_at_fixed_rotations():
 
 def _gtsam_lm_cost(graph, start) -> float:
     """gtsam's LM from ``start`` (gauge priors on our held vertices), tolerances 1e-14: a reference optimum."""
-    gtsam = pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values
+    pytest.importorskip("gtsam")
+    from posegraph.gtsam_bridge import gtsam_reference_cost
 
-    factors = graph_to_gtsam(graph)
-    with_priors = graph_to_gtsam(graph)
-    with_priors.push_back(gauge_priors(graph, start))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setRelativeErrorTol(1e-14)
-    params.setAbsoluteErrorTol(1e-14)
-    params.setMaxIterations(500)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(with_priors, poses_to_values(graph.ids, start), params)
-    return factors.error(optimizer.optimize())
+    return gtsam_reference_cost(graph, start)
 
 
 @pytest.mark.parametrize("seed", [21, 22, 23, 24])

@@ -30,20 +30,12 @@ GRAPHS = [
 def gtsam_optimum(graph, start):
     """gtsam LM from ``start`` at tolerance 1e-14, or None without gtsam."""
     try:
-        import gtsam
+        import gtsam  # noqa: F401
     except ImportError:
         return None
-    from posegraph.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values
+    from posegraph.gtsam_bridge import gtsam_reference_cost
 
-    factors = graph_to_gtsam(graph)
-    anchored = graph_to_gtsam(graph)
-    anchored.push_back(gauge_priors(graph, start))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setRelativeErrorTol(1e-14)
-    params.setAbsoluteErrorTol(1e-14)
-    params.setMaxIterations(300)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(anchored, poses_to_values(graph.ids, start), params)
-    return factors.error(optimizer.optimize())
+    return gtsam_reference_cost(graph, start, max_iterations=300)
 
 
 def cell(result, optimum):

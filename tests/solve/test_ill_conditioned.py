@@ -55,18 +55,10 @@ def run(name, start, method, **kwargs):
 
 def gtsam_lm_cost(graph, start) -> float:
     """gtsam LM from ``start`` at tolerance 1e-14 (gauge priors on our held vertices): edge cost only."""
-    gtsam = pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values
+    pytest.importorskip("gtsam")
+    from posegraph.gtsam_bridge import gtsam_reference_cost
 
-    factors = graph_to_gtsam(graph)
-    anchored = graph_to_gtsam(graph)
-    anchored.push_back(gauge_priors(graph, start))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setRelativeErrorTol(1e-14)
-    params.setAbsoluteErrorTol(1e-14)
-    params.setMaxIterations(300)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(anchored, poses_to_values(graph.ids, start), params)
-    return factors.error(optimizer.optimize())
+    return gtsam_reference_cost(graph, start, max_iterations=300)
 
 
 RUNS = [("chordal", "lm"), ("chordal", "gn"), ("truth", "lm"), ("truth", "gn")]
