@@ -13,12 +13,12 @@ line at all: our reader creates the vertices the edges name, at the identity, wi
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pytest
 
-from posegraph.errors import G2oFormatError, GraphError, InputWarning
+from posegraph.errors import G2oFormatError, GraphError
+from tests.io.helpers import read_with_warnings
 from posegraph.io.g2o import read_g2o, rotations_from_roll_pitch_yaw
 from posegraph.solve.residuals import cost
 
@@ -28,13 +28,6 @@ gtsam = pytest.importorskip("gtsam")
 EDGE3_EXAMPLES = ["sphere2500.txt", "sphere2500_groundtruth.txt"]
 
 UPPER_ROWS, UPPER_COLS = np.triu_indices(6)
-
-
-def read_with_warnings(path, **options):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        graph = read_g2o(path, **options)
-    return graph, [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
 
 
 def gtsam_between_factors(factors):

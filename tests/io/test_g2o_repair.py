@@ -9,26 +9,19 @@ polar factor of ``A`` (scipy.linalg.polar), and an independent parse of the file
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pytest
 from scipy.linalg import polar
 
-from posegraph.errors import G2oFormatError, InputWarning
+from posegraph.errors import G2oFormatError
+from tests.io.helpers import read_with_warnings
 from posegraph.io.g2o import REPAIR_EIGENVALUE_FLOOR, read_g2o
 
 CUBICLE_REFUSED_LINE = 5753
 CUBICLE_INDEFINITE_EDGES = 5021
 PERMUTATION = [3, 4, 5, 0, 1, 2]  # g2o's [t; R] to [ω; v]
 UPPER_ROWS, UPPER_COLS = np.triu_indices(6)
-
-
-def read_with_warnings(path, **options):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        graph = read_g2o(path, **options)
-    return graph, [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
 
 
 def file_information(path):
