@@ -207,3 +207,12 @@ def roll_blind_odometry_graph(seed: int, n: int = 60) -> tuple[PoseGraph, np.nda
     noise[~odometry] = rng.normal(scale=0.3, size=((~odometry).sum(), 6))
     measurements = graph.measurements @ se3.exp(noise)
     return PoseGraph(graph.ids, graph.poses, edge_from, edge_to, measurements, information), truth
+
+
+def noise_free_cases():
+    """``(name, graph, truth)`` of the noise-free graphs every initialiser must solve exactly, traits in the name."""
+    sparse_ids = np.random.default_rng(7).permutation(np.arange(40) * 13 + 5)
+    yield "chain+loops", *noise_free_graph(0)
+    yield "sparse-unordered-ids", *noise_free_graph(1, ids=sparse_ids)
+    yield "ill-conditioned-1e-2..1e7", *noise_free_graph(2, info_range=(1e-2, 1e7))
+    yield "components+fix+duplicates+leaves", *hard_graph(3, noise=False)

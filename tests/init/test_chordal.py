@@ -40,16 +40,7 @@ SOLVERS = (
 )
 
 
-def _graphs():
-    sparse_ids = np.random.default_rng(7).permutation(np.arange(40) * 13 + 5)
-    yield "chain+loops", *synthetic.noise_free_graph(0)
-    yield "sparse-unordered-ids", *synthetic.noise_free_graph(1, ids=sparse_ids)
-    yield "ill-conditioned-1e-2..1e7", *synthetic.noise_free_graph(2, info_range=(1e-2, 1e7))
-    yield "components+fix+duplicates+leaves", *synthetic.hard_graph(3, noise=False)
-    yield "all-of-it, seed 11", *synthetic.hard_graph(11, noise=False)
-
-
-GRAPHS = list(_graphs())
+GRAPHS = [*synthetic.noise_free_cases(), ("all-of-it, seed 11", *synthetic.hard_graph(11, noise=False))]
 
 
 @pytest.mark.parametrize("linear_solver", SOLVERS)

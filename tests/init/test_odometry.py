@@ -17,16 +17,7 @@ from . import synthetic
 TREES = ("bfs", "max_information")
 
 
-def _graphs():
-    """(name, graph, truth) of noise-free graphs with their traits in the name."""
-    sparse_ids = np.random.default_rng(7).permutation(np.arange(40) * 13 + 5)
-    yield "chain+loops", *synthetic.noise_free_graph(0)
-    yield "sparse-unordered-ids", *synthetic.noise_free_graph(1, ids=sparse_ids)
-    yield "ill-conditioned", *synthetic.noise_free_graph(2, info_range=(1e-2, 1e7))
-    yield "components+fix+duplicates+leaves", *synthetic.hard_graph(3, noise=False)
-
-
-GRAPHS = list(_graphs())
+GRAPHS = list(synthetic.noise_free_cases())
 
 
 @pytest.mark.parametrize("tree", TREES)
