@@ -238,18 +238,22 @@ def _single_threaded_blas() -> None:
 def _import_solver_modules() -> None:
     """Import what the read / initialise / optimise phases use, so that their timings are work,
     not first-use imports. Only those: scipy.sparse.linalg (SuperLU) and scipy.sparse.csgraph
-    (odometry start) import on first use, as they are needed only off the default path."""
+    (odometry start) import on first use, as they are needed only off the default path. With the
+    system CHOLMOD usable directly (:mod:`posegraph.cholmod`) that path needs no scipy at all,
+    and scipy and scikit-sparse are not imported (~0.14 s less per run)."""
     import contextlib
 
     _single_threaded_blas()
-    _import_scipy_sparse()
+    from posegraph import cholmod
+
+    if cholmod.load() is None:
+        _import_scipy_sparse()
+        with contextlib.suppress(ImportError):
+            import sksparse.cholmod  # noqa: F401
 
     import posegraph.init  # noqa: F401
     import posegraph.io.g2o  # noqa: F401
     import posegraph.solve  # noqa: F401
-
-    with contextlib.suppress(ImportError):
-        import sksparse.cholmod  # noqa: F401
 
     # The ~30,000 objects these imports made live as long as the process. Frozen (moved out of the
     # garbage collector's generations), they are no longer traversed by every full collection, nor

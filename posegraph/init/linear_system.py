@@ -24,9 +24,9 @@ analyses it once — the CSC pattern, where each per-edge block entry lands in i
 symbolic factorisation — and each :meth:`~RelativeLeastSquares.solve` only refills the values
 (the rotation and translation stages share one analysis).
 
-This module deliberately depends on scipy (and optionally scikit-sparse) and
-:mod:`posegraph.native_threads` only, not on :mod:`posegraph.solve`: initialisation comes before the
-solver in the data flow.
+This module depends on :mod:`posegraph.cholmod` and :mod:`posegraph.native_threads` (scipy and
+scikit-sparse only on their fallback paths), not on :mod:`posegraph.solve`: initialisation comes
+before the solver in the data flow.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.sparse as sp
 
+from posegraph import cholmod as cholmod_library
 from posegraph.native_threads import NativeThreads
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS"]
@@ -43,8 +43,9 @@ __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS"]
 LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
 
 SMALL_SYSTEM = 1000
-"""``"auto"`` uses SuperLU below this many unknowns: there CHOLMOD's fixed cost per factorisation
-(~3–5 ms here) outweighs its faster supernodal kernels (smallGrid3D, 372 unknowns: 5 ms with
+"""Without the direct CHOLMOD binding (:mod:`posegraph.cholmod`), ``"auto"`` uses SuperLU below
+this many unknowns: there scikit-sparse's fixed cost per factorisation
+(~3–5 ms here) outweighs CHOLMOD's faster supernodal kernels (smallGrid3D, 372 unknowns: 5 ms with
 SuperLU, 9 ms with CHOLMOD, whole chordal initialisation, best of 10; parking-garage, 4980
 unknowns: 77 ms with CHOLMOD, 118 ms with SuperLU)."""
 
@@ -59,13 +60,14 @@ class RelativeLeastSquares:
     held : (n,) bool — vertices whose block is given, not solved for.
     edge_from, edge_to : (m,) int — vertex indices ``i``, ``j`` of each edge.
     linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"``.
-        ``"cholmod"``: scikit-sparse's CHOLMOD (supernodal Cholesky, AMD ordering, symbolic
-        analysis kept between solves); ``"scipy"``: SuperLU in symmetric mode (minimum-degree
-        ordering on AᵀA+A, no off-diagonal pivoting — on an SPD matrix that is Cholesky in
-        disguise), needing nothing beyond scipy; ``"auto"``: CHOLMOD for systems of at least
-        :data:`SMALL_SYSTEM` unknowns when it imports, else SuperLU — and SuperLU too when CHOLMOD
-        reports the matrix as not positive definite (it can, at round-off level, when the weights
-        span many decades) or returns non-finite numbers.
+        ``"cholmod"``: CHOLMOD (supernodal Cholesky, AMD ordering, symbolic analysis kept
+        between solves), through :mod:`posegraph.cholmod` or else scikit-sparse; ``"scipy"``:
+        SuperLU in symmetric mode (minimum-degree ordering on AᵀA+A, no off-diagonal pivoting —
+        on an SPD matrix that is Cholesky in disguise), needing nothing beyond scipy; ``"auto"``:
+        CHOLMOD through :mod:`posegraph.cholmod` when it loads, else through scikit-sparse for
+        systems of at least :data:`SMALL_SYSTEM` unknowns, else SuperLU — and SuperLU too when
+        CHOLMOD reports the matrix as not positive definite (it can, at round-off level, when
+        the weights span many decades) or returns non-finite numbers.
     threads : int or None, default 1
         Threads of the system OpenBLAS and OpenMP under CHOLMOD during its work
         (:class:`posegraph.native_threads.NativeThreads`; None leaves them as they are). One, as in
@@ -99,7 +101,7 @@ class RelativeLeastSquares:
         i, j = self.edge_from, self.edge_to
         self.free_from, self.free_to = free[i], free[j]
         self.both_free = self.free_from & self.free_to
-        self._symbolic = None  # CHOLMOD analysis, made at the first factorisation
+        self._symbolic = None  # CHOLMOD analysis (either binding), made at the first factorisation
         self._threads = None  # NativeThreads, made at the first factorisation
         self._analyse_pattern()
 
@@ -135,17 +137,16 @@ class RelativeLeastSquares:
         indices[position.ravel()] = (3 * rows[:, None, None] + _AXIS[None, :, None] + 0 * _AXIS[None, None, :]).ravel()
         self._indices = indices
 
-    def _matrix(self, transfer: np.ndarray, weight_transfer: np.ndarray, weight: np.ndarray) -> sp.csc_matrix:
-        """H with its per-edge blocks ``W``, ``PᵀWP``, ``−WP``, ``−PᵀW`` summed into the fixed pattern."""
+    def _matrix(self, transfer: np.ndarray, weight_transfer: np.ndarray, weight: np.ndarray) -> np.ndarray:
+        """CSC ``data`` of H (both triangles) with its per-edge blocks ``W``, ``PᵀWP``, ``−WP``,
+        ``−PᵀW`` summed into the fixed pattern ``(self._indptr, self._indices)``."""
         blocks = [
             weight[self.free_to],
             transfer[self.free_from].transpose(0, 2, 1) @ weight_transfer[self.free_from],
             -weight_transfer[self.both_free],
             -weight_transfer[self.both_free].transpose(0, 2, 1),
         ]
-        data = np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
-        size = 3 * self.num_free
-        return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
+        return np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
 
     def solve(
         self,
@@ -197,11 +198,20 @@ class RelativeLeastSquares:
             values[free] -= solve(gradient.reshape(-1, k)).reshape(shape)
         return values
 
-    def _factorize(self, matrix: sp.csc_matrix):
-        """``solve(rhs) -> x`` for ``matrix``, by the backend chosen at construction."""
-        small = self.linear_solver == "auto" and matrix.shape[0] < SMALL_SYSTEM
-        if self.linear_solver in ("auto", "cholmod") and not small:
-            factor = self._cholmod_factor(matrix)
+    def _csc(self, data: np.ndarray):
+        import scipy.sparse as sp
+
+        size = 3 * self.num_free
+        return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
+
+    def _factorize(self, data: np.ndarray):
+        """``solve(rhs) -> x`` for the matrix with CSC ``data``, by the backend chosen at construction."""
+        if self.linear_solver == "scipy":
+            return _superlu_solver(self._csc(data))
+        direct = cholmod_library.load() is not None
+        small = self.linear_solver == "auto" and 3 * self.num_free < SMALL_SYSTEM and not direct
+        if not small:
+            factor = self._cholmod_factor(data, direct)
             if factor is not None:
                 fallback = []
 
@@ -211,27 +221,41 @@ class RelativeLeastSquares:
                             solution = factor(rhs)
                         if self.linear_solver == "cholmod" or np.all(np.isfinite(solution)):
                             return solution
-                        fallback.append(_superlu_solver(matrix))
+                        fallback.append(_superlu_solver(self._csc(data)))
                     return fallback[0](rhs)
 
                 return solve
-        return _superlu_solver(matrix)
+        return _superlu_solver(self._csc(data))
 
     def _native_threads(self) -> NativeThreads:
-        """The thread setting for CHOLMOD's calls, made once (after ``sksparse`` has been imported)."""
+        """The thread setting for scikit-sparse's CHOLMOD calls, made once (after ``sksparse`` has been imported)."""
         if self._threads is None:
             self._threads = NativeThreads(self.threads)
         return self._threads
 
-    def _cholmod_factor(self, matrix: sp.csc_matrix):
-        """CHOLMOD's factor of ``matrix`` (callable), or None when unavailable or not positive definite."""
+    def _cholmod_factor(self, data: np.ndarray, direct: bool):
+        """CHOLMOD's factor of the matrix (callable), or None when unavailable or not positive definite."""
         required = self.linear_solver == "cholmod"
+        if direct:
+            if self._symbolic is None:
+                self._symbolic = cholmod_library.SparseCholesky(
+                    self._indptr, self._indices, 3 * self.num_free, "amd", self.threads
+                )
+                self._threads = NativeThreads(None)  # the binding sets the threads itself
+            try:
+                self._symbolic.factorize(data)
+            except cholmod_library.NotPositiveDefiniteError:
+                if required:
+                    raise
+                return None
+            return self._symbolic.solve
         try:
             from sksparse.cholmod import CholmodError, CholmodTypeConversionWarning, CholmodWarning, analyze
         except ImportError:
             if required:
                 raise
             return None
+        matrix = self._csc(data)
         try:
             with warnings.catch_warnings(), self._native_threads():
                 # CHOLMOD warns (rather than raises) on some tiny pivots: treat that as a failure.
@@ -246,7 +270,7 @@ class RelativeLeastSquares:
             return None
 
 
-def _superlu_solver(matrix: sp.csc_matrix):
+def _superlu_solver(matrix):
     from scipy.sparse.linalg import splu
 
     factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})

@@ -26,7 +26,6 @@ of a Python loop over vertices or tree levels.
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
@@ -63,6 +62,7 @@ def spanning_tree(graph: PoseGraph, tree: str = "bfs") -> tuple[np.ndarray, np.n
         raise ValueError(f"tree must be one of {TREES}, got {tree!r}")
     # Imported here, not at the top: csgraph pulls in scipy.sparse.linalg and scipy.linalg (~40 ms),
     # which the default (chordal) start of every `posegraph optimize` does not need.
+    import scipy.sparse as sp  # here, not at the top: only odometry starts need it
     from scipy.sparse import csgraph
 
     require_usable(graph)

@@ -6,9 +6,10 @@ Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.H
 ``solve(rhs)``. :func:`make_linear_solver` picks one by name:
 
 ``"cholmod"``
-    CHOLMOD's supernodal Cholesky through scikit-sparse. ``cholmod.analyze`` (fill-reducing
-    ordering, elimination tree, supernodes) runs once; each iteration only
-    ``Factor.cholesky_inplace``. It reads the lower triangle directly. Ordering: AMD by default
+    CHOLMOD's supernodal Cholesky, called directly on the system library
+    (:mod:`posegraph.cholmod`, no scipy import) or, where that binding cannot be used, through
+    scikit-sparse. The analysis (fill-reducing ordering, elimination tree, supernodes) runs once;
+    each iteration only the numeric factorisation. It reads the lower triangle directly. Ordering: AMD by default
     (on the pose graphs here it factors as fast as METIS / nested dissection and analyses
     several times faster; figures in ``docs/solver.md``). The system OpenBLAS and the OpenMP loops
     under CHOLMOD run one thread during the factorisation and solves by default
@@ -24,7 +25,7 @@ Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.H
     Without pivoting on a symmetric positive-definite matrix LU is Cholesky in disguise
     (U = D Lᵀ), so it is stable.
 ``"auto"``
-    ``"cholmod"`` when scikit-sparse imports, else ``"scipy"``.
+    ``"cholmod"`` when either CHOLMOD path works, else ``"scipy"``.
 
 A matrix that is not positive definite raises :class:`NotPositiveDefiniteError`
 (LM then raises λ; Gauss-Newton stops).
@@ -35,8 +36,9 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.sparse as sp
 
+from posegraph import cholmod as cholmod_library
+from posegraph.cholmod import NotPositiveDefiniteError
 from posegraph.native_threads import NativeThreads
 from posegraph.solve.sparsity import BLOCK, HessianPattern, lower_csc
 
@@ -48,25 +50,27 @@ __all__ = [
     "NativeThreads",
     "ScipySolver",
     "cholmod_available",
+    "scikit_sparse_available",
     "make_linear_solver",
 ]
-
-
-class NotPositiveDefiniteError(ArithmeticError):
-    """The (damped) normal-equation matrix could not be factorised as positive definite."""
 
 
 BlasThreads = NativeThreads
 """The former name of :class:`posegraph.native_threads.NativeThreads` (which now also covers OpenMP)."""
 
 
-def cholmod_available() -> bool:
+def scikit_sparse_available() -> bool:
     """Whether scikit-sparse's CHOLMOD wrapper can be imported."""
     try:
         from sksparse import cholmod  # noqa: F401
     except Exception:  # ImportError, or a broken shared library
         return False
     return True
+
+
+def cholmod_available() -> bool:
+    """Whether CHOLMOD can be used: the direct binding (:func:`posegraph.cholmod.load`) or scikit-sparse."""
+    return cholmod_library.load() is not None or scikit_sparse_available()
 
 
 class LinearSolver:
@@ -84,28 +88,48 @@ class LinearSolver:
 
 
 class CholmodSolver(LinearSolver):
-    """CHOLMOD supernodal Cholesky (scikit-sparse); symbolic analysis once in the constructor."""
+    """CHOLMOD supernodal Cholesky; symbolic analysis once in the constructor.
 
-    ORDERINGS = ("amd", "metis", "nesdis", "colamd", "best", "default", "natural")
+    ``backend``: ``"direct"`` (:class:`posegraph.cholmod.SparseCholesky`), ``"scikit-sparse"``,
+    or ``"auto"`` (direct when the system library passes its checks, else scikit-sparse).
+    """
 
-    def __init__(self, pattern: HessianPattern, ordering: str = "amd", blas_threads: int | None = 1):
-        from sksparse import cholmod
+    ORDERINGS = tuple(cholmod_library.ORDERINGS)
 
+    def __init__(self, pattern: HessianPattern, ordering: str = "amd", blas_threads: int | None = 1, backend: str = "auto"):
         if ordering not in self.ORDERINGS:
             raise ValueError(f"CHOLMOD ordering must be one of {self.ORDERINGS}, got {ordering!r}")
-        self._cholmod = cholmod
+        if backend not in ("auto", "direct", "scikit-sparse"):
+            raise ValueError(f"backend must be 'auto', 'direct' or 'scikit-sparse', got {backend!r}")
+        if backend == "auto":
+            backend = "direct" if cholmod_library.load() is not None else "scikit-sparse"
         self._pattern = pattern
-        structure = lower_csc(pattern, np.ones(pattern.nnz))
-        with warnings.catch_warnings():
-            # scikit-sparse warns when it converts index types; harmless and once per graph
-            warnings.simplefilter("ignore", cholmod.CholmodTypeConversionWarning)
-            self._factor = cholmod.analyze(structure, mode="supernodal", ordering_method=ordering)
         self.ordering = ordering
-        self._threads = NativeThreads(blas_threads)
-        threads = f", {blas_threads} thread{'s' if blas_threads != 1 else ''}" if self._threads.active else ""
-        self.name = f"cholmod (supernodal, {ordering}{threads})"
+        self.backend = backend
+        if backend == "direct":
+            self._cholesky = cholmod_library.SparseCholesky(
+                pattern.indptr, pattern.indices, pattern.dimension, ordering, blas_threads
+            )
+            active = self._cholesky.threads_active
+        else:
+            from sksparse import cholmod
+
+            self._cholmod = cholmod
+            structure = lower_csc(pattern, np.ones(pattern.nnz))
+            with warnings.catch_warnings():
+                # scikit-sparse warns when it converts index types; harmless and once per graph
+                warnings.simplefilter("ignore", cholmod.CholmodTypeConversionWarning)
+                self._factor = cholmod.analyze(structure, mode="supernodal", ordering_method=ordering)
+            self._threads = NativeThreads(blas_threads)
+            active = self._threads.active
+        threads = f", {blas_threads} thread{'s' if blas_threads != 1 else ''}" if active else ""
+        via = "" if backend == "direct" else " via scikit-sparse"
+        self.name = f"cholmod (supernodal, {ordering}{threads}){via}"
 
     def factorize(self, data: np.ndarray) -> None:
+        if self.backend == "direct":
+            self._cholesky.factorize(data)
+            return
         matrix = lower_csc(self._pattern, data)
         cholmod = self._cholmod
         try:
@@ -117,12 +141,16 @@ class CholmodSolver(LinearSolver):
             raise NotPositiveDefiniteError(str(err)) from err
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self.backend == "direct":
+            return self._cholesky.solve(rhs)
         with self._threads:
             return self._factor(rhs)
 
 
-def vertex_graph(pattern: HessianPattern) -> sp.csc_matrix:
-    """``(p, p)`` symmetric 0/1 pattern of the block graph (free vertices, diagonal included)."""
+def vertex_graph(pattern: HessianPattern):
+    """``(p, p)`` symmetric 0/1 pattern of the block graph (free vertices, diagonal included), scipy CSC."""
+    import scipy.sparse as sp
+
     p = pattern.num_variables
     cols = np.repeat(np.arange(p * BLOCK), np.diff(pattern.indptr))
     rows = pattern.indices.astype(np.int64)
@@ -132,7 +160,7 @@ def vertex_graph(pattern: HessianPattern) -> sp.csc_matrix:
     return (lower + lower.T).tocsc()
 
 
-def elimination_tree(pattern: sp.csc_matrix) -> np.ndarray:
+def elimination_tree(pattern) -> np.ndarray:
     """Parent of each node in the elimination tree of a symmetric pattern (``-1`` for roots).
 
     Liu's algorithm with path compression (Davis, *Direct Methods for Sparse Linear Systems*,
@@ -177,6 +205,7 @@ def vertex_ordering(pattern: HessianPattern) -> np.ndarray:
 
     Returns ``order`` with ``order[new] = old`` (block-column indices).
     """
+    import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
     graph = vertex_graph(pattern)
@@ -196,6 +225,9 @@ class ScipySolver(LinearSolver):
     """SuperLU (scipy) without pivoting on the full symmetric matrix, permuted once per graph."""
 
     def __init__(self, pattern: HessianPattern):
+        import scipy.sparse as sp
+
+        self._sparse = sp
         self._pattern = pattern
         d = pattern.dimension
         order = vertex_ordering(pattern)
@@ -218,7 +250,7 @@ class ScipySolver(LinearSolver):
     def factorize(self, data: np.ndarray) -> None:
         from scipy.sparse.linalg import splu
 
-        matrix = sp.csc_matrix((data[self._gather], self._indices, self._indptr), shape=self._shape)
+        matrix = self._sparse.csc_matrix((data[self._gather], self._indices, self._indptr), shape=self._shape)
         try:
             lu = splu(
                 matrix,
@@ -252,8 +284,9 @@ def make_linear_solver(
     if kind == "cholmod":
         if not cholmod_available():
             raise ImportError(
-                "linear_solver='cholmod' needs scikit-sparse (pip install 'posegraph[fast]', "
-                "with libsuitesparse-dev installed); use linear_solver='scipy' or 'auto'"
+                "linear_solver='cholmod' needs the CHOLMOD library (apt-get install libsuitesparse-dev) "
+                f"[{cholmod_library.unavailable_reason()}] or scikit-sparse (pip install 'posegraph[fast]'); "
+                "use linear_solver='scipy' or 'auto'"
             )
         return CholmodSolver(pattern, "amd" if ordering == "auto" else ordering, blas_threads)
     if kind == "scipy":

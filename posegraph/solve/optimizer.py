@@ -63,7 +63,7 @@ from posegraph.solve.linearize import linearize
 from posegraph.solve.params import SolverParams
 from posegraph.solve.residuals import edge_errors, weighted_cost
 from posegraph.solve.result import IterationRecord, OptimizeResult
-from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc
+from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_matvec
 
 __all__ = ["optimize"]
 
@@ -223,7 +223,7 @@ def _reused_factor_step(solver, pattern, data, gradient: np.ndarray, cost_now: f
         return None
     slope = float(np.einsum("i,i->", gradient, step))
     # δᵀHδ from the lower triangle only: 2 δᵀ(tril(H) δ) − Σ H_kk δ_k²
-    lower_product = lower_csc(pattern, data) @ step
+    lower_product = lower_matvec(pattern, data, step)
     curvature = 2.0 * float(np.einsum("i,i->", step, lower_product)) - float(
         np.einsum("i,i,i->", step, data[pattern.diagonal], step)
     )

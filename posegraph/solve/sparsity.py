@@ -10,9 +10,12 @@ keep their 21 entries on and below the diagonal, off-diagonal blocks all 36.
 in the CSC ``data`` array of every entry of every edge's blocks ``H_ii``,
 ``H_jj`` and ``H_ij``. Each iteration :func:`hessian_values` and
 :func:`gradient_values` then scatter-add the new per-edge blocks with one
-sparse matrix–vector product each — no Python loop over edges. Entries that are
-not stored (upper halves of diagonal blocks, blocks of held vertices) simply
-have no column in that scatter matrix.
+``np.bincount`` each — no Python loop over edges. Entries that are not stored
+(upper halves of diagonal blocks, blocks of held vertices) point at one extra
+slot past the end, which is dropped.
+
+numpy only: no scipy.sparse here (its import costs ~0.1 s per process, see
+:mod:`posegraph.cholmod`); :func:`lower_csc` builds a scipy matrix on request.
 
 Variables: vertex ``k`` is *free* unless ``held[k]``; free vertices are
 numbered ``0..p-1`` in vertex order and vertex ``k``'s tangent occupies rows
@@ -24,9 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
-__all__ = ["HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_csc"]
+__all__ = ["HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc"]
 
 BLOCK = 6
 """Tangent dimension of SE(3): the block size."""
@@ -48,12 +50,15 @@ class HessianPattern:
     """``(nnz,)`` int32 CSC row indices, sorted within each column (diagonal entry first)."""
     diagonal: np.ndarray
     """``(6p,)`` int64 positions of the diagonal entries in ``data``."""
-    hessian_scatter: sp.csr_matrix
-    """``(nnz, 108·m)`` 0/1 matrix: ``data = hessian_scatter @ blocks.ravel()`` for ``blocks`` of
-    shape ``(m, 3, 6, 6)`` stacking ``[H_ii, H_jj, H_ij]`` of each edge."""
-    gradient_scatter: sp.csr_matrix
-    """``(6p, 12·m)`` 0/1 matrix: ``g = gradient_scatter @ grads.ravel()`` for ``grads`` of shape
-    ``(m, 2, 6)`` stacking ``[g_i, g_j]`` of each edge."""
+    entry_columns: np.ndarray
+    """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
+    hessian_positions: np.ndarray
+    """``(108·m,)`` intp: position in ``data`` of each entry of ``blocks.ravel()``, for ``blocks``
+    of shape ``(m, 3, 6, 6)`` stacking ``[H_ii, H_jj, H_ij]`` of each edge; ``nnz`` for entries
+    that are not stored."""
+    gradient_positions: np.ndarray
+    """``(12·m,)`` intp: row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
+    ``(m, 2, 6)`` stacking ``[g_i, g_j]`` of each edge; ``6p`` for held vertices' entries."""
 
     @property
     def dimension(self) -> int:
@@ -105,7 +110,10 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     brow = np.maximum(ci[both], cj[both])
     bcol = np.minimum(ci[both], cj[both])
     stride = max(p, 1)
-    key = np.unique(bcol * stride + brow)  # sorted by column, then row
+    # sorted by column, then row; sort + mask rather than np.unique, which (numpy 2.4) imports
+    # numpy.ma to check for a masked array: 7 ms of every run
+    key = np.sort(bcol * stride + brow)
+    key = key[np.concatenate((key[:1] == key[:1], key[1:] != key[:-1]))]
     off_col, off_row = key // stride, key % stride
     off_per_col = np.bincount(off_col, minlength=p)
     # start of each block column's off-diagonal blocks in the sorted key list
@@ -156,21 +164,14 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         cols_list.append((edge_base[both] + 2 * BLOCK * BLOCK + np.arange(BLOCK * BLOCK)).ravel())
     rows = np.concatenate(rows_list) if rows_list else np.zeros(0, np.int64)
     colsel = np.concatenate(cols_list) if cols_list else np.zeros(0, np.int64)
-    hessian_scatter = sp.csr_matrix(
-        (np.ones(rows.shape[0]), (rows, colsel)), shape=(nnz, m * 3 * 36)
-    )
+    hessian_positions = np.full(m * 3 * BLOCK * BLOCK, nnz, dtype=np.intp)
+    hessian_positions[colsel] = rows
 
     # --- gradient scatter: grads (m, 2, 6) = [g_i, g_j]
-    gflat = np.arange(m * 2 * BLOCK, dtype=np.int64).reshape(m, 2, BLOCK)
-    grow, gcol = [], []
+    gradient_positions = np.full(m * 2 * BLOCK, BLOCK * p, dtype=np.intp)
     for which, c in enumerate((ci, cj)):
         sel = c >= 0
-        grow.append((BLOCK * c[sel][:, None] + q[None, :]).ravel())
-        gcol.append(gflat[sel, which].ravel())
-    grow, gcol = np.concatenate(grow), np.concatenate(gcol)
-    gradient_scatter = sp.csr_matrix(
-        (np.ones(grow.shape[0]), (grow, gcol)), shape=(BLOCK * p, m * 2 * BLOCK)
-    )
+        gradient_positions.reshape(m, 2, BLOCK)[sel, which] = BLOCK * c[sel][:, None] + q[None, :]
 
     return HessianPattern(
         num_vertices=n,
@@ -179,8 +180,9 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         indptr=indptr.astype(np.int32),
         indices=indices.astype(np.int32),
         diagonal=diagonal,
-        hessian_scatter=hessian_scatter,
-        gradient_scatter=gradient_scatter,
+        entry_columns=np.repeat(np.arange(BLOCK * p, dtype=np.int32), np.diff(indptr)),
+        hessian_positions=hessian_positions,
+        gradient_positions=gradient_positions,
     )
 
 
@@ -189,15 +191,26 @@ def hessian_values(pattern: HessianPattern, blocks: np.ndarray) -> np.ndarray:
 
     ``H_ij = A_iᵀ Ω A_j`` is the block at (block row of ``i``, block column of ``j``).
     """
-    return pattern.hessian_scatter @ np.ascontiguousarray(blocks).ravel()
+    weights = np.ascontiguousarray(blocks, dtype=np.float64).ravel()
+    return np.bincount(pattern.hessian_positions, weights=weights, minlength=pattern.nnz + 1)[: pattern.nnz]
 
 
 def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:
     """``(6p,)`` gradient ``g = Σ Jᵀ Ω e`` from per-edge ``(m, 2, 6)`` = ``[A_iᵀ Ω e, A_jᵀ Ω e]``."""
-    return pattern.gradient_scatter @ np.ascontiguousarray(grads).ravel()
+    weights = np.ascontiguousarray(grads, dtype=np.float64).ravel()
+    d = pattern.dimension
+    return np.bincount(pattern.gradient_positions, weights=weights, minlength=d + 1)[:d]
 
 
-def lower_csc(pattern: HessianPattern, data: np.ndarray) -> sp.csc_matrix:
-    """The lower triangle of H as a scipy CSC matrix (no copy of ``data``)."""
+def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(6p,)``."""
+    d = pattern.dimension
+    return np.bincount(pattern.indices, weights=data * x[pattern.entry_columns], minlength=d)
+
+
+def lower_csc(pattern: HessianPattern, data: np.ndarray):
+    """The lower triangle of H as a ``scipy.sparse.csc_matrix`` (no copy of ``data``; imports scipy)."""
+    import scipy.sparse as sp
+
     d = pattern.dimension
     return sp.csc_matrix((data, pattern.indices, pattern.indptr), shape=(d, d), copy=False)

@@ -28,6 +28,9 @@ def test_solver_imports_leave_out_what_the_default_path_does_not_use():
         """
         import gc, os, sys
         import cli
+        cli._single_threaded_blas()  # before numpy loads, as _import_solver_modules does first
+        from posegraph import cholmod
+        cholmod.load = lambda: None  # the path without the direct CHOLMOD binding, which imports scipy.sparse
         cli._import_solver_modules()
         unused = ["numpy.f2py", "numpy.testing", "numpy.ma", "numpy.polynomial", "scipy.sparse.csgraph",
                   "scipy.sparse.linalg", "scipy.linalg"]
@@ -48,6 +51,25 @@ def test_solver_imports_leave_out_what_the_default_path_does_not_use():
     assert lines[1] == "all True True"
     assert lines[2] == "sparse [1.0, 1.0, 1.0]"
     assert lines[3] == "threads 1 frozen True"
+
+
+def test_with_the_direct_cholmod_binding_a_whole_run_imports_no_scipy(tmp_path, shared_dataset):
+    from posegraph import cholmod
+
+    if cholmod.load() is None:
+        pytest.skip(f"the system CHOLMOD cannot be used directly: {cholmod.unavailable_reason()}")
+    source, output, report = shared_dataset("smallGrid3D"), tmp_path / "out.g2o", tmp_path / "report.json"
+    proc = run_python(
+        f"""
+        import sys
+        import cli
+        code = cli.main(["optimize", {str(source)!r}, "-o", {str(output)!r}, "--quiet", "--report", {str(report)!r}])
+        print(code, sorted(name for name in sys.modules if name.split(".")[0] in ("scipy", "sksparse")))
+        """
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["0", "[]"]
+    assert json.loads(report.read_text())["linear_solver"].startswith("cholmod (supernodal, amd")
 
 
 def test_an_explicit_openblas_thread_count_is_kept():

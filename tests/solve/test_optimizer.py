@@ -10,7 +10,6 @@ import pytest
 from posegraph.graph import PoseGraph
 from posegraph.io.g2o import read_g2o
 from posegraph.solve import IterationRecord, OptimizeResult, SolverParams, optimize
-from posegraph.solve.linear import cholmod_available
 from posegraph.solve.residuals import cost
 from tests.solve.gtsam_reference import gtsam_graph, perturbed_poses
 
@@ -68,8 +67,7 @@ def test_reaches_gtsam_lm_cost_on_pose3example(method, gtsam_example_file):
     check_optimum(result, path)
 
 
-@pytest.mark.skipif(not cholmod_available(), reason="compares the two backends")
-def test_backends_reach_the_same_optimum(shared_dataset):
+def test_backends_reach_the_same_optimum(shared_dataset, cholmod_backend):
     graph = read_g2o(shared_dataset("smallGrid3D"))
     a = optimize(graph, initial="file", params=SolverParams(linear_solver="cholmod"))
     b = optimize(graph, initial="file", params=SolverParams(linear_solver="scipy"))

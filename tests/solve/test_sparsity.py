@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc
+from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc, lower_matvec
 
 
 def random_graph(rng, n, m):
@@ -125,10 +124,32 @@ def test_self_loop_is_refused():
 
 
 def test_scatter_has_no_python_loop_cost_per_edge():
-    # One sparse product per assembly: the scatter maps are plain CSR matrices sized by the edges.
+    # One bincount per assembly: the scatter maps are flat position arrays sized by the edges.
     rng = np.random.default_rng(3)
     edge_from, edge_to = random_graph(rng, 50, 400)
-    pattern = analyze_pattern(50, edge_from, edge_to, np.eye(50, dtype=bool)[0])
-    assert sp.issparse(pattern.hessian_scatter) and pattern.hessian_scatter.shape == (pattern.nnz, 400 * 108)
-    # every stored entry receives at least one contribution; diagonal blocks take 21 of 36 entries
-    assert np.all(np.diff(pattern.hessian_scatter.indptr) > 0)
+    held = np.eye(50, dtype=bool)[0]
+    pattern = analyze_pattern(50, edge_from, edge_to, held)
+    assert pattern.hessian_positions.shape == (400 * 108,)
+    assert pattern.gradient_positions.shape == (400 * 12,)
+    # every stored entry receives at least one contribution
+    received = np.bincount(pattern.hessian_positions, minlength=pattern.nnz + 1)
+    assert np.all(received[: pattern.nnz] > 0)
+    # dropped (slot nnz): the 15 upper entries of a free end's diagonal block, all 36 of a held
+    # end's, and the whole H_ij block when either end is held
+    at_held = held[edge_from].astype(int) + held[edge_to]
+    expected_dropped = np.sum(15 * (2 - at_held) + 36 * at_held + 36 * (at_held > 0))
+    assert received[pattern.nnz] == expected_dropped
+    assert np.count_nonzero(pattern.gradient_positions == pattern.dimension) == 6 * at_held.sum()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_lower_matvec_is_the_stored_lower_triangle_times_a_vector(seed):
+    rng = np.random.default_rng(seed)
+    n, m = 30, 90
+    edge_from, edge_to = random_graph(rng, n, m)
+    held = rng.random(n) < 0.2
+    pattern = analyze_pattern(n, edge_from, edge_to, held)
+    data = hessian_values(pattern, random_blocks(rng, m))
+    x = rng.normal(size=pattern.dimension)
+    expected = lower_csc(pattern, data).toarray() @ x
+    np.testing.assert_allclose(lower_matvec(pattern, data, x), expected, rtol=1e-12, atol=1e-12)
