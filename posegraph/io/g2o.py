@@ -102,7 +102,7 @@ import numpy as np
 
 from posegraph.atomic import atomic_path
 from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, OutputError
-from posegraph.graph import PoseGraph, connected_components
+from posegraph.graph import EdgeSource, PoseGraph, connected_components, edge_checksum
 from posegraph.lie import so3
 
 __all__ = [
@@ -359,6 +359,11 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         fixed=fixed,
         source=source,
     )
+    if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
+        # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
+        # lines state the edges exactly, and the writer copies them (EdgeSource).
+        checksum = edge_checksum(graph.ids, graph.edge_from, graph.edge_to, graph.measurements, graph.information)
+        object.__setattr__(graph, "edge_source", EdgeSource(EDGE_TAG, lines[EDGE_TAG].rests, checksum))
     if graph.num_edges:
         notes += _components_note(graph, path)
     for note in notes:
@@ -855,6 +860,10 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     ``[t; R]`` order (upper triangle, row by row). Quaternions are
     ``qx qy qz qw`` with ``qw ≥ 0``; floats are written with ``repr``, the
     shortest decimal that reads back to the same double.
+
+    Edges read from ``EDGE_SE3:QUAT`` lines and unchanged since (``graph.edge_source``, see
+    :class:`posegraph.graph.EdgeSource`) are written as they were read, trailing blanks and
+    comments dropped: their numbers read back to the same edges either way.
     """
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
     if poses.shape != (graph.num_vertices, 4, 4):
@@ -868,6 +877,11 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     edge_line = EDGE_TAG + " %d %d" + " %r" * 7 + "%s\n"
     parts = [vertex_line % (i, *v) for i, v in zip(graph.ids.tolist(), vertex_values.tolist())]
     parts += [f"{FIX_TAG} {i}\n" for i in graph.ids[graph.fixed].tolist()]
+    source = graph.edge_source
+    if source is not None and source.format == EDGE_TAG and source.matches(graph):
+        head = EDGE_TAG + " "
+        parts += [head + line.rstrip() + "\n" for line in source.lines]
+        return "".join(parts)
     ends = zip(
         graph.ids[graph.edge_from].tolist(),
         graph.ids[graph.edge_to].tolist(),

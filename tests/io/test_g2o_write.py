@@ -284,3 +284,84 @@ def test_graph_built_in_memory_has_no_source_and_writes_anywhere(tmp_path):
     assert graph.source is None
     write_g2o(str(tmp_path / "x.g2o"), graph)
     assert_same_graph(read_quietly(tmp_path / "x.g2o"), graph)
+
+
+# --- edges read from a file are written as they were read (posegraph.graph.EdgeSource)
+
+INFORMATION_TEXT = " ".join(["1e2", "0", "0", "0", "0", "0", "100.0", "0", "0", "0", "0", "1E+2", "0", "0", "0",
+                             "400", "0", "0", "4.0e2", "0", "400"])  # fmt: skip
+ODD_EDGES = (
+    "EDGE_SE3:QUAT 0 1 1 0.0 0 0 0 0 1 " + INFORMATION_TEXT + "  \r\n",  # CRLF and trailing blanks
+    "EDGE_SE3:QUAT\t1\t2\t+1.5 -0 2e-3 0 0 0.3 0.9  " + INFORMATION_TEXT + "   # a comment\n",  # tabs, unnormalised q
+    "EDGE_SE3:QUAT 2 0 -2.5 0 0 0 0 0 -1 " + INFORMATION_TEXT + "\n",  # qw < 0
+)
+VERTICES = "".join(f"VERTEX_SE3:QUAT {k} {k} 0 0 0 0 0 1\n" for k in range(3))
+
+
+def edge_lines(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith("EDGE_SE3:QUAT")]
+
+
+def test_edges_read_from_a_file_are_written_as_they_were_read(text_file, tmp_path):
+    graph = read_quietly(text_file(VERTICES + "".join(ODD_EDGES)))
+    assert graph.edge_source is not None and graph.edge_source.matches(graph)
+    write_g2o(tmp_path / "out.g2o", graph, graph.poses + 0.0)
+    written = (tmp_path / "out.g2o").read_text()
+    # the text after the tag as read, comment and trailing blanks dropped
+    expected = ["EDGE_SE3:QUAT " + line.partition("\t")[2].partition("#")[0].rstrip() if "\t" in line.split(" ")[0]
+                else line.partition("#")[0].rstrip() for line in ODD_EDGES]  # fmt: skip
+    assert edge_lines(written) == expected
+    again = read_quietly(tmp_path / "out.g2o")
+    for name in ("edge_from", "edge_to", "measurements", "information"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(graph, name))  # bit for bit
+
+
+def test_a_shared_dataset_is_rewritten_with_its_own_edge_lines(shared_dataset, tmp_path):
+    source = shared_dataset("smallGrid3D")
+    graph = read_quietly(source)
+    write_g2o(tmp_path / "out.g2o", graph)
+    original = [line.rstrip() for line in source.read_text().splitlines() if line.startswith("EDGE_SE3:QUAT")]
+    assert edge_lines((tmp_path / "out.g2o").read_text()) == original
+    again = read_quietly(tmp_path / "out.g2o")
+    np.testing.assert_array_equal(again.measurements, graph.measurements)
+    np.testing.assert_array_equal(again.information, graph.information)
+
+
+@pytest.mark.parametrize("change", ["information replaced", "measurement edited in place", "ids replaced", "edge reversed"])
+def test_edges_changed_since_reading_are_formatted_from_their_values(change, text_file, tmp_path):
+    from dataclasses import replace
+
+    graph = read_quietly(text_file(VERTICES + "".join(ODD_EDGES)))
+    if change == "information replaced":
+        graph = replace(graph, information=2.0 * graph.information)
+    elif change == "measurement edited in place":
+        graph.measurements[0, 0, 3] += 0.25
+    elif change == "ids replaced":
+        graph = replace(graph, ids=graph.ids + 10)
+    else:
+        graph = replace(graph, edge_from=graph.edge_to, edge_to=graph.edge_from)
+    assert graph.edge_source is not None and not graph.edge_source.matches(graph)
+    write_g2o(tmp_path / "out.g2o", graph)
+    rows = [line.split() for line in edge_lines((tmp_path / "out.g2o").read_text())]
+    assert all(len(row) == 31 for row in rows)  # formatted: every number as its repr
+    again = read_quietly(tmp_path / "out.g2o")
+    np.testing.assert_array_equal(again.ids, graph.ids)
+    np.testing.assert_array_equal(again.edge_from, graph.edge_from)
+    np.testing.assert_array_equal(again.information, graph.information)
+    np.testing.assert_allclose(again.measurements, graph.measurements, rtol=0, atol=1e-15)
+
+
+def test_edges_are_not_kept_when_not_all_g2o_quaternion_lines_or_repaired(text_file):
+    euler = "EDGE3 0 2 1 0 0 0 0 0 " + INFORMATION_TEXT + "\n"
+    assert read_quietly(text_file(VERTICES + ODD_EDGES[0] + euler)).edge_source is None
+    indefinite = "EDGE_SE3:QUAT 2 0 1 0 0 0 0 0 1 " + INFORMATION_TEXT.replace("400", "-400", 1) + "\n"
+
+    def read_repairing(text):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", InputWarning)
+            return read_g2o(text_file(text), repair_information=True)
+
+    assert read_repairing(VERTICES + ODD_EDGES[0] + ODD_EDGES[1] + indefinite).edge_source is None
+    # asked to repair, but nothing needed it: the lines still state the edges
+    kept = read_repairing(VERTICES + "".join(ODD_EDGES))
+    assert kept.edge_source is not None and kept.edge_source.matches(kept)
