@@ -64,11 +64,11 @@ def linearize_table(graphs, repeat):
         information = np.ascontiguousarray(graph.information)
         blocks = linearize(graph.poses, graph, information)
         lin = timed(lambda: linearize(graph.poses, graph, information), repeat)
-        asm = timed(lambda: (hessian_values(pattern, blocks.hessian), gradient_values(pattern, blocks.gradient)), repeat)
+        asm = timed(lambda: (hessian_values(pattern, blocks.hessian_blocks), gradient_values(pattern, blocks.gradient)), repeat)
 
         def both():
             b = linearize(graph.poses, graph, information)
-            hessian_values(pattern, b.hessian)
+            hessian_values(pattern, b.hessian_blocks)
             gradient_values(pattern, b.gradient)
 
         tot = timed(both, repeat)
@@ -83,7 +83,7 @@ def backend_table(graphs, repeat):
     for name, graph in graphs.items():
         pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held_vertices(graph))
         blocks = linearize(graph.poses, graph)
-        data = hessian_values(pattern, blocks.hessian)
+        data = hessian_values(pattern, blocks.hessian_blocks)
         data[pattern.diagonal] *= 1.0 + 1e-5  # LM's Marquardt damping at the initial λ
         rhs = -gradient_values(pattern, blocks.gradient)
         makers = []

@@ -37,12 +37,14 @@ Convergence (after an accepted step): gtsam's relative / absolute decrease test,
 applied to the larger of the actual decrease and the full step's predicted one
 — a shortened or over-promised step leaves the latter on the table.
 
-The last factorisation is reused once near the optimum (``reuse_factorization``): after a full
-step whose decrease was within :data:`REUSE_WINDOW` times the tolerances, the next iteration first
-solves its new system with the previous factorisation (a "chord" Newton step). If that step's
-model decrease is already within the tolerances and the cost confirms it (gain ratio), it is
-taken without factorising and normally ends the run — the factorisation of the last iteration,
-whose step only polishes the cost at the 1e-9 level, is saved (:func:`_reused_factor_step`).
+Chord steps (``reuse_factorization``): in Newton's region H changes little from one iterate to
+the next, so after a full step whose gain ratio was within :data:`CHORD_MIN_GAIN` of 1, the next
+iteration first solves its new system with the factorisation it still holds (Shamanskii's
+"chord" Newton step: one triangular solve instead of a factorisation). The step is taken only if
+H still agrees with that factorisation along it (:data:`CHORD_AGREEMENT`), it promises a fast
+enough decrease (:data:`CHORD_CONTRACTION` of the last one, or already within the tolerances) and
+the cost confirms it (gain ratio); the factorisation is then kept for the iteration after. Else
+the iteration factorises as usual, one solve later (:func:`_reused_factor_step`).
 
 Gauge: fixed vertices and the anchor of every component without one
 (:func:`posegraph.graph.held_vertices`) have no variables at all — their
@@ -185,25 +187,29 @@ def _backtrack(cost_at, cost_now: float, slope: float, cost_full: float, params:
     return t, cost_t, state
 
 
-# The previous factorisation is tried (see _reused_factor_step) only after a step whose decrease was
-# within this factor of the convergence tolerances (relative 1e-3 at the default 1e-7): earlier in a
-# run the decrease after the next step cannot be within the tolerances, and the attempt (one
-# triangular solve and one sparse product, ~8 ms on torus3D) would be wasted. Near the optimum each
-# decrease is 1e-2 (torus3D, sphere2500 from the chordal start) to 1e-4 (sphere2500 from the file's
-# poses: 2.8e-4, then 2.9e-8) of the one before, or 1/3 (pose3example); so the window is wide, and a
-# futile attempt costs far less than the factorisation a successful one saves.
-REUSE_WINDOW = 1e4
+CHORD_CONTRACTION = 0.1
+"""A step from the previous factorisation is taken when its predicted decrease is at most this
+fraction of the last actual decrease (or within the convergence tolerances): the chord iteration
+then still converges at least this fast, so it cannot crawl where a new factorisation would leap.
+Measured from the chordal start, chord steps save one factorisation of three on sphere2500 and
+torus3D, one of four on smallGrid3D, two of four on tinyGrid3D and none on parking-garage, cubicle
+and sphere_bignoise_vertex3, with the same number of iterations or one more, and final costs
+within 3e-10 relative of the runs without them."""
+
+CHORD_AGREEMENT = 0.9
+"""A step from the previous factorisation ``M`` is taken only if its model decrease under the new
+H is at least this fraction of ``−½gᵀδ``, its value were H equal to M (see :func:`_reused_factor_step`)."""
+
+CHORD_MIN_GAIN = 0.9
+"""The previous factorisation is tried only after a full step whose gain ratio was at least this
+(and at most its inverse): the quadratic model was accurate there, i.e. the run is in Newton's
+region, where H changes little from one iterate to the next."""
 
 
-def _near_convergence(decrease: float, cost_before: float, params: SolverParams) -> bool:
-    """Whether ``decrease`` is within :data:`REUSE_WINDOW` times the convergence tolerances."""
-    if decrease <= REUSE_WINDOW * params.absolute_tolerance:
-        return True
-    return cost_before > 0 and decrease / cost_before <= REUSE_WINDOW * params.relative_tolerance
-
-
-def _reused_factor_step(solver, pattern, data, gradient: np.ndarray, cost_now: float, params: SolverParams):
-    """The step ``δ = −M⁻¹ g`` from the factorisation ``M`` the solver still holds, if it finishes the run.
+def _reused_factor_step(
+    solver, pattern, data, gradient: np.ndarray, cost_now: float, params: SolverParams, last_decrease: float
+):
+    """The chord step ``δ = −M⁻¹ g`` from the factorisation ``M`` the solver still holds, if it is worth taking.
 
     ``M`` is the damped matrix of the previous iteration, whose full step was accepted; ``data`` and
     ``gradient`` are the new linearisation's lower-triangle H and g. Near the optimum H barely
@@ -214,9 +220,9 @@ def _reused_factor_step(solver, pattern, data, gradient: np.ndarray, cost_now: f
         L(0) − L(δ) = −gᵀδ − ½ δᵀHδ,
 
     is what LM's gain ratio divides by. Returns ``(δ, gᵀδ, L(0) − L(δ))`` when that decrease is
-    positive and already within the convergence tolerances (so, if the cost confirms it, this step
-    ends the run), else None: then the caller factorises as usual, having spent one solve and one
-    sparse product.
+    at least :data:`CHORD_AGREEMENT` of ``−½gᵀδ`` (its value if H were M) and either within the
+    convergence tolerances or at most :data:`CHORD_CONTRACTION` times ``last_decrease``; else
+    None: then the caller factorises as usual, having spent one solve and one sparse product.
     """
     step = solver.solve(-gradient)
     if not np.all(np.isfinite(step)):
@@ -228,7 +234,13 @@ def _reused_factor_step(solver, pattern, data, gradient: np.ndarray, cost_now: f
         np.einsum("i,i,i->", step, data[pattern.diagonal], step)
     )
     predicted = -slope - 0.5 * curvature
-    if not predicted > 0 or _converged(predicted, cost_now, params) is None:
+    # With M = H the model decrease of δ = −M⁻¹g is exactly −½gᵀδ; the ratio measures how far H has
+    # moved from M along δ. Below CHORD_AGREEMENT, δ is a stale direction whose small decrease says
+    # nothing about how far the optimum still is (sphere_bignoise: 0.24, and a Newton step then
+    # still found twice the chord step's decrease), so a new factorisation is due.
+    if not predicted > 0 or predicted < CHORD_AGREEMENT * (-0.5 * slope):
+        return None
+    if _converged(predicted, cost_now, params) is None and predicted > CHORD_CONTRACTION * last_decrease:
         return None
     return step, slope, predicted
 
@@ -300,6 +312,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
     records: list[IterationRecord] = []
     termination, converged = MAX_ITERATIONS, False
     reusable = None  # λ of the factorisation the solver holds, when its full step was just accepted
+    last_decrease = np.inf
 
     def shrink_lambda(lam: float, gain: float) -> float:
         nonlocal nu
@@ -314,7 +327,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
         t0 = time.perf_counter()
         blocks = linearize(poses, graph, information, current_errors)
         t1 = time.perf_counter()
-        data = hessian_values(pattern, blocks.hessian)
+        data = hessian_values(pattern, blocks.hessian_blocks)
         gradient = gradient_values(pattern, blocks.gradient)
         t2 = time.perf_counter()
         seconds_factorize = seconds_solve = 0.0
@@ -332,7 +345,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
             # Near the optimum the last factorisation still gives an almost exact Newton step, which
             # may finish the run without another factorisation (see _reused_factor_step).
             tc = time.perf_counter()
-            found = _reused_factor_step(solver, pattern, data, gradient, current_cost, params)
+            found = _reused_factor_step(solver, pattern, data, gradient, current_cost, params, last_decrease)
             if found is not None:
                 step, slope, predicted = found
                 trial = _retract(poses, free, step.reshape(-1, 6))
@@ -341,11 +354,14 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
                 gain = decrease / predicted if np.isfinite(new_cost) else -np.inf
                 if gain > params.min_gain_ratio:
                     accepted, scale, lambda_tried = True, 1.0, reusable
+                    chord_lambda = reusable
                     step_norm = float(np.sqrt(np.einsum("i,i->", step, step)))
                 else:
                     new_cost, predicted, gain = current_cost, float("nan"), float("nan")
             seconds_solve += time.perf_counter() - tc
         reusable = None
+        if accepted and CHORD_MIN_GAIN <= gain <= 1.0 / CHORD_MIN_GAIN:
+            reusable = chord_lambda  # the same factorisation may serve the next iteration too
         while not accepted:  # (every accepting branch below also breaks)
             attempts += 1
             lambda_tried = lam
@@ -412,7 +428,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
                     accepted = True
                     if lm:
                         lam = shrink_lambda(lam, gain)
-                    if scale == 1.0 and params.reuse_factorization and _near_convergence(decrease, current_cost, params):
+                    if scale == 1.0 and params.reuse_factorization and CHORD_MIN_GAIN <= gain <= 1.0 / CHORD_MIN_GAIN:
                         reusable = lambda_tried  # the factorisation behind this step, for the next iteration
                     break
                 scale = float("nan")
@@ -436,6 +452,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
         decrease = 0.0
         if accepted:
             decrease = current_cost - new_cost
+            last_decrease = decrease
             cost_before = current_cost
             poses, current_cost, current_errors = trial, new_cost, trial_errors
         record = IterationRecord(

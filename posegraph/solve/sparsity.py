@@ -53,9 +53,9 @@ class HessianPattern:
     entry_columns: np.ndarray
     """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
     hessian_positions: np.ndarray
-    """``(108·m,)`` intp: position in ``data`` of each entry of ``blocks.ravel()``, for ``blocks``
-    of shape ``(m, 3, 6, 6)`` stacking ``[H_ii, H_jj, H_ij]`` of each edge; ``nnz`` for entries
-    that are not stored."""
+    """``(3, 36·m)`` intp: row ``k`` holds the position in ``data`` of each entry of the ``k``-th
+    per-edge blocks ``(m, 6, 6)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
+    entries that are not stored."""
     gradient_positions: np.ndarray
     """``(12·m,)`` intp: row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
     ``(m, 2, 6)`` stacking ``[g_i, g_j]`` of each edge; ``6p`` for held vertices' entries."""
@@ -147,31 +147,32 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     indices[off_slots] = BLOCK * off_row[:, None] + full_row
     diagonal = indptr[:-1].copy()  # diagonal entry is first in each column
 
-    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij], raveled per edge
-    rows_list, cols_list = [], []
-    edge_base = 3 * BLOCK * BLOCK * np.arange(m, dtype=np.int64)[:, None]
-    for which, variable in enumerate((ci, cj)):  # H_ii, then H_jj: lower halves of diagonal blocks
-        sel = variable >= 0
-        if np.any(sel):
-            rows_list.append(diagonal_slots[variable[sel]].ravel())
-            cols_list.append((edge_base[sel] + which * BLOCK * BLOCK + np.flatnonzero(lower)).ravel())
-    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci).
+    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij], raveled per edge.
+    # Gathered from small tables (one row per variable or stored block, plus a last row of "not
+    # stored" = nnz that index −1 picks), rather than scattered entry by entry.
+    entries = BLOCK * BLOCK
+    diagonal_table = np.full((p + 1, entries), nnz, dtype=np.intp)  # entry (a, b) of variable c's H_cc
+    diagonal_table[:p, np.flatnonzero(lower)] = diagonal_slots
+    positions = np.empty((3, m, entries), dtype=np.intp)
+    positions[0] = diagonal_table[ci]  # H_ii (ci = −1: held, the last row)
+    positions[1] = diagonal_table[cj]  # H_jj
+    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci);
+    # rows k.. of the table are the transposed blocks.
+    k = key.size
+    off_table = np.full((2 * k + 1, entries), nnz, dtype=np.intp)
+    off_table[:k] = off_slots
+    off_table[k : 2 * k] = off_slots[:, transpose]
+    which_block = np.full(m, 2 * k, dtype=np.intp)
     if np.any(both):
         a, b = ci[both], cj[both]
-        block = np.searchsorted(key, np.minimum(a, b) * stride + np.maximum(a, b))
-        entry = np.where((a > b)[:, None], np.arange(BLOCK * BLOCK), transpose)  # (e, 36): H_ij entry -> block entry
-        rows_list.append(np.take_along_axis(off_slots[block], entry, axis=1).ravel())
-        cols_list.append((edge_base[both] + 2 * BLOCK * BLOCK + np.arange(BLOCK * BLOCK)).ravel())
-    rows = np.concatenate(rows_list) if rows_list else np.zeros(0, np.int64)
-    colsel = np.concatenate(cols_list) if cols_list else np.zeros(0, np.int64)
-    hessian_positions = np.full(m * 3 * BLOCK * BLOCK, nnz, dtype=np.intp)
-    hessian_positions[colsel] = rows
+        which_block[both] = np.searchsorted(key, np.minimum(a, b) * stride + np.maximum(a, b)) + k * (a < b)
+    positions[2] = off_table[which_block]
+    hessian_positions = positions.reshape(3, -1)
 
     # --- gradient scatter: grads (m, 2, 6) = [g_i, g_j]
-    gradient_positions = np.full(m * 2 * BLOCK, BLOCK * p, dtype=np.intp)
-    for which, c in enumerate((ci, cj)):
-        sel = c >= 0
-        gradient_positions.reshape(m, 2, BLOCK)[sel, which] = BLOCK * c[sel][:, None] + q[None, :]
+    gradient_table = np.full((p + 1, BLOCK), BLOCK * p, dtype=np.intp)
+    gradient_table[:p] = BLOCK * np.arange(p)[:, None] + q[None, :]
+    gradient_positions = np.stack([gradient_table[ci], gradient_table[cj]], axis=1).reshape(-1)
 
     return HessianPattern(
         num_vertices=n,
@@ -186,13 +187,20 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     )
 
 
-def hessian_values(pattern: HessianPattern, blocks: np.ndarray) -> np.ndarray:
-    """CSC ``data`` of the lower triangle of H from per-edge blocks ``(m, 3, 6, 6)`` = ``[H_ii, H_jj, H_ij]``.
+def hessian_values(pattern: HessianPattern, blocks) -> np.ndarray:
+    """CSC ``data`` of the lower triangle of H from the per-edge blocks ``[H_ii, H_jj, H_ij]``.
 
-    ``H_ij = A_iᵀ Ω A_j`` is the block at (block row of ``i``, block column of ``j``).
+    ``blocks`` is a sequence of three ``(m, 6, 6)`` arrays (what :func:`posegraph.solve.linearize.linearize`
+    returns, no stacking copy needed) or one ``(m, 3, 6, 6)`` array. ``H_ij = A_iᵀ Ω A_j`` is the
+    block at (block row of ``i``, block column of ``j``).
     """
-    weights = np.ascontiguousarray(blocks, dtype=np.float64).ravel()
-    return np.bincount(pattern.hessian_positions, weights=weights, minlength=pattern.nnz + 1)[: pattern.nnz]
+    if isinstance(blocks, np.ndarray):
+        blocks = [blocks[:, k] for k in range(3)]
+    length = pattern.nnz + 1
+    data = np.zeros(length)
+    for positions, block in zip(pattern.hessian_positions, blocks):
+        data += np.bincount(positions, weights=np.ascontiguousarray(block, dtype=np.float64).ravel(), minlength=length)
+    return data[: pattern.nnz]
 
 
 def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ from posegraph.graph import PoseGraph
 from posegraph.io.g2o import read_g2o
 from posegraph.solve import IterationRecord, OptimizeResult, SolverParams, optimize
 from posegraph.solve.residuals import cost
+from posegraph.solve.sparsity import lower_csc
 from tests.solve.gtsam_reference import gtsam_graph, perturbed_poses
 
 # gtsam 4.3 LevenbergMarquardtOptimizer, default parameters, prior (σ=1e-6) on the first pose, from the
@@ -275,46 +276,57 @@ def factorizations(result) -> int:
 
 @pytest.mark.parametrize("method", ["lm", "gn"])
 @pytest.mark.parametrize("linear_solver", ["scipy", "auto"])
-def test_reusing_the_last_factorization_ends_one_factorization_earlier_at_the_same_optimum(method, linear_solver):
+def test_chord_steps_save_factorizations_and_reach_the_same_optimum(method, linear_solver):
     graph = synthetic_graph(3, n=40, loops=30)
     params = dict(method=method, linear_solver=linear_solver)
     fresh = optimize(graph, initial="file", params=SolverParams(reuse_factorization=False, **params))
     reused = optimize(graph, initial="file", params=SolverParams(**params))
     assert fresh.converged and reused.converged
     assert all(record.attempts >= 1 for record in fresh.records)
-    # The last iteration solved with the previous factorisation and ended the run.
-    last = reused.records[-1]
-    assert (last.attempts, last.seconds_factorize, last.accepted, last.step_scale) == (0, 0.0, True, 1.0)
-    assert last.lambda_ == reused.records[-2].lambda_  # the damping that factorisation was made with
-    assert all(record.attempts >= 1 for record in reused.records[:-1])
-    assert factorizations(reused) == factorizations(fresh) - 1
-    assert reused.iterations == fresh.iterations
-    # That step met the convergence test: its decrease was within the tolerance, like the fresh run's last.
-    assert last.cost_decrease <= SolverParams().relative_tolerance * reused.records[-2].cost
+    chords = [k for k, record in enumerate(reused.records) if record.attempts == 0]
+    assert chords and chords[0] > 0
+    assert factorizations(reused) < factorizations(fresh)
+    for k in chords:  # an accepted full step, made with the damping of the last factorisation
+        record = reused.records[k]
+        assert (record.seconds_factorize, record.accepted, record.step_scale) == (0.0, True, 1.0)
+        last_factorized = max(j for j in range(k) if reused.records[j].attempts >= 1)
+        assert record.lambda_ == reused.records[last_factorized].lambda_
     assert reused.final_cost == pytest.approx(fresh.final_cost, rel=1e-9)
     assert reused.final_cost == pytest.approx(cost(graph, reused.poses), rel=1e-12)
     costs = [reused.initial_cost] + [record.cost for record in reused.records]
     assert all(b <= a for a, b in zip(costs, costs[1:]))
 
 
-def test_the_previous_factorization_is_not_tried_far_from_the_optimum(monkeypatch):
-    """The reuse is attempted only after a step whose decrease was within REUSE_WINDOW × the
-    tolerances, and its step is taken only if it ends the run: early iterations all factorise."""
+def test_chord_steps_are_tried_only_after_accurate_full_steps_and_taken_only_when_they_qualify(monkeypatch):
+    """Tried after an accepted full step with gain ratio in [0.9, 1/0.9] (nowhere else), and taken
+    only when H agrees with the held factorisation along the step and the decrease it promises is
+    a tenth of the last one or within the tolerances."""
     import posegraph.solve.optimizer as optimizer_module
 
     calls = []
     original = optimizer_module._reused_factor_step
 
-    def spy(*args):
-        found = original(*args)
-        calls.append(found is not None)
+    def spy(solver, pattern, data, gradient, cost_now, params, last_decrease):
+        found = original(solver, pattern, data, gradient, cost_now, params, last_decrease)
+        step = solver.solve(-gradient)
+        slope = float(gradient @ step)
+        curvature = float(step @ (lower_csc(pattern, data) @ step)) * 2 - float(np.sum(data[pattern.diagonal] * step**2))
+        predicted = -slope - 0.5 * curvature
+        qualifies = predicted >= optimizer_module.CHORD_AGREEMENT * (-0.5 * slope) and (
+            predicted <= optimizer_module.CHORD_CONTRACTION * last_decrease
+            or predicted <= params.relative_tolerance * cost_now
+        )
+        calls.append((found is not None, qualifies))
         return found
 
     monkeypatch.setattr(optimizer_module, "_reused_factor_step", spy)
     graph = synthetic_graph(3, n=40, loops=30)
     result = optimize(graph, initial="file")
-    decreases = [r.cost_decrease / (r.cost + r.cost_decrease) for r in result.records]
-    near = [d <= optimizer_module.REUSE_WINDOW * SolverParams().relative_tolerance for d in decreases]
-    assert len(calls) == sum(near[:-1])  # one attempt after each accepted step inside the window
-    assert calls[-1] and not any(calls[:-1])  # only the last attempt finished the run
-    assert [r.attempts for r in result.records].count(0) == 1
+    records = result.records
+    tried_after = [
+        r.accepted and r.step_scale == 1.0 and 0.9 <= r.gain_ratio <= 1 / 0.9 for r in records[:-1]
+    ]
+    assert len(calls) == sum(tried_after) > 0
+    assert [found for found, _ in calls] == [qualifies for _, qualifies in calls]
+    assert [r.attempts for r in records].count(0) == sum(found for found, _ in calls) > 0
+    assert records[0].attempts >= 1  # the first iteration always factorises
