@@ -307,7 +307,7 @@ def test_chord_steps_are_tried_only_after_accurate_full_steps_and_taken_only_whe
     original = optimizer_module._reused_factor_step
 
     def spy(solver, pattern, data, gradient, cost_now, params, last_decrease):
-        found = original(solver, pattern, data, gradient, cost_now, params, last_decrease)
+        found, chord_slope, chord_predicted = original(solver, pattern, data, gradient, cost_now, params, last_decrease)
         step = solver.solve(-gradient)
         slope = float(gradient @ step)
         curvature = float(step @ (lower_csc(pattern, data) @ step)) * 2 - float(np.sum(data[pattern.diagonal] * step**2))
@@ -316,8 +316,9 @@ def test_chord_steps_are_tried_only_after_accurate_full_steps_and_taken_only_whe
             predicted <= optimizer_module.CHORD_CONTRACTION * last_decrease
             or predicted <= params.relative_tolerance * cost_now
         )
+        assert (chord_slope, chord_predicted) == pytest.approx((slope, predicted), rel=1e-9, abs=1e-300)
         calls.append((found is not None, qualifies))
-        return found
+        return found, chord_slope, chord_predicted
 
     monkeypatch.setattr(optimizer_module, "_reused_factor_step", spy)
     graph = synthetic_graph(3, n=40, loops=30)
@@ -330,3 +331,37 @@ def test_chord_steps_are_tried_only_after_accurate_full_steps_and_taken_only_whe
     assert [found for found, _ in calls] == [qualifies for _, qualifies in calls]
     assert [r.attempts for r in records].count(0) == sum(found for found, _ in calls) > 0
     assert records[0].attempts >= 1  # the first iteration always factorises
+
+
+def test_a_negligible_newton_decrement_under_the_held_factorization_ends_the_run(shared_dataset):
+    """parking-garage from the chordal start: after the chord step of iteration 3 the next one is
+    stale (H is 2.3 times M along it), but ½gᵀM⁻¹g is 4e-10 of the cost, far below the tolerance:
+    the run stops there, one factorisation earlier, within 1e-9 of the cost a new one reaches."""
+    import posegraph.solve.optimizer as optimizer_module
+    from posegraph.init import initialize
+
+    graph = read_g2o(shared_dataset("parking-garage"))
+    start = initialize(graph, "chordal")
+    result = optimize(graph, initial=start)
+    fresh = optimize(graph, initial=start, params=SolverParams(reuse_factorization=False))
+    assert result.termination == optimizer_module.CONVERGED_DECREMENT and result.converged
+    last = result.records[-1]
+    assert (last.attempts, last.accepted, last.seconds_factorize) == (0, False, 0.0)
+    assert last.cost == result.records[-2].cost == result.final_cost
+    assert factorizations(result) < factorizations(fresh)
+    assert result.final_cost == pytest.approx(fresh.final_cost, rel=1e-9)
+    assert result.final_cost == pytest.approx(cost(graph, result.poses), rel=1e-12)
+
+
+def test_the_decrement_test_needs_a_barely_damped_factorization_and_its_margin():
+    import posegraph.solve.optimizer as optimizer_module
+
+    params = SolverParams()
+    cost_now = 2.0
+    limit = params.relative_tolerance * cost_now / optimizer_module.DECREMENT_MARGIN
+    negligible = optimizer_module._decrement_negligible
+    assert negligible(0.5 * limit, cost_now, 1e-12, params)
+    assert not negligible(2.0 * limit, cost_now, 1e-12, params)
+    assert not negligible(0.5 * limit, cost_now, 10 * optimizer_module.DECREMENT_MAX_LAMBDA, params)
+    assert not negligible(float("nan"), cost_now, 1e-12, params)
+    assert not negligible(-1e-30, cost_now, 1e-12, params)
