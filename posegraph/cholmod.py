@@ -34,7 +34,10 @@ import weakref
 
 import numpy as np
 
-__all__ = ["NotPositiveDefiniteError", "CholmodLibrary", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS"]
+__all__ = [
+    "NotPositiveDefiniteError", "CholmodLibrary", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS",
+    "VERTEX_ORDERINGS", "fill_reducing_order", "block_permutation",
+]  # fmt: skip
 
 
 class NotPositiveDefiniteError(ArithmeticError):
@@ -58,7 +61,7 @@ _COMMON_BYTES = 1 << 16
 
 # CHOLMOD's constants (cholmod_core.h, cholmod_cholesky.h)
 _CHOLMOD_INT, _CHOLMOD_PATTERN, _CHOLMOD_REAL, _CHOLMOD_DOUBLE = 0, 0, 1, 0
-_CHOLMOD_SUPERNODAL, _CHOLMOD_MAXMETHODS, _CHOLMOD_SOLVE_A = 2, 9, 0
+_CHOLMOD_SUPERNODAL, _CHOLMOD_MAXMETHODS, _CHOLMOD_SOLVE_A, _CHOLMOD_GIVEN = 2, 9, 0, 1
 _CHOLMOD_OUT_OF_MEMORY = -2
 
 
@@ -156,6 +159,11 @@ class CholmodLibrary:
             ("cholmod_start", c_int, [c_void_p]),
             ("cholmod_finish", c_int, [c_void_p]),
             ("cholmod_analyze", c_void_p, [c_void_p, c_void_p]),
+            ("cholmod_analyze_p", c_void_p, [c_void_p, c_void_p, c_void_p, ctypes.c_size_t, c_void_p]),
+            ("cholmod_amd", c_int, [c_void_p, c_void_p, ctypes.c_size_t, c_void_p, c_void_p]),
+            ("cholmod_metis", c_int, [c_void_p, c_void_p, ctypes.c_size_t, c_int, c_void_p, c_void_p]),
+            ("cholmod_nested_dissection", ctypes.c_int64,
+             [c_void_p, c_void_p, ctypes.c_size_t, c_void_p, c_void_p, c_void_p, c_void_p]),  # fmt: skip
             ("cholmod_factorize", c_int, [c_void_p, c_void_p, c_void_p]),
             ("cholmod_solve", c_void_p, [c_int, c_void_p, c_void_p, c_void_p]),
             ("cholmod_free_factor", c_int, [c_void_p, c_void_p]),
@@ -232,12 +240,16 @@ class SparseCholesky:
 
     The pattern is analysed once, here: ``indptr`` ``(n+1,)`` and ``indices`` ``(nnz,)`` of a CSC
     matrix of order ``n`` whose entries on and below the diagonal are used (stored entries above
-    it are ignored), with ``ordering`` a key of :data:`ORDERINGS`. Then, any number of times,
+    it are ignored), with ``ordering`` a key of :data:`ORDERINGS` — or, given ``permutation`` ``(n,)``
+    (``permutation[k]`` = the row/column eliminated k-th, e.g. from :func:`block_permutation`),
+    that order, postordered. Then, any number of times,
     :meth:`factorize` with new ``data`` ``(nnz,)`` on the same pattern and :meth:`solve`.
     ``threads`` wraps CHOLMOD's calls in :class:`posegraph.native_threads.NativeThreads`.
     """
 
-    def __init__(self, indptr, indices, n: int, ordering: str = "amd", threads: int | None = 1, *, library=None):
+    def __init__(
+        self, indptr, indices, n: int, ordering: str = "amd", threads: int | None = 1, *, permutation=None, library=None
+    ):
         from posegraph.native_threads import NativeThreads
 
         cholmod = library or load()
@@ -257,7 +269,7 @@ class SparseCholesky:
         settings = _CommonPrefix.from_buffer(self._common)
         settings.print = 0  # CHOLMOD would print "not positive definite" to stdout; we raise instead
         settings.supernodal = _CHOLMOD_SUPERNODAL
-        code = ORDERINGS[ordering]
+        code = _CHOLMOD_GIVEN if permutation is not None else ORDERINGS[ordering]
         if code is not None:
             settings.nmethods = 1
             settings.method[0].ordering = code
@@ -273,8 +285,18 @@ class SparseCholesky:
             nz=None, x=None, z=None, stype=-1, itype=_CHOLMOD_INT, xtype=_CHOLMOD_PATTERN, dtype=_CHOLMOD_DOUBLE,
             sorted=0, packed=1,
         )  # fmt: skip
+        if permutation is not None:
+            self.permutation = np.ascontiguousarray(permutation, dtype=np.int32)
+            if self.permutation.shape != (self.n,):
+                raise ValueError(f"permutation must have shape ({self.n},), got {self.permutation.shape}")
+            self.ordering = "given"
         with self._threads:
-            factor = cholmod.analyze(ctypes.byref(self._matrix), self._common)
+            if permutation is None:
+                factor = cholmod.analyze(ctypes.byref(self._matrix), self._common)
+            else:
+                factor = cholmod.analyze_p(
+                    ctypes.byref(self._matrix), self.permutation.ctypes.data, None, 0, self._common
+                )
         if not factor:
             raise self._failure("cholmod_analyze")
         self._factor.value = factor
@@ -341,3 +363,57 @@ class SparseCholesky:
         """Free the factor and CHOLMOD's workspace now (otherwise when the object is collected)."""
         self._factorized = False
         self._finalizer()
+
+
+VERTEX_ORDERINGS = ("amd", "metis", "nesdis")
+"""Orderings :func:`fill_reducing_order` computes."""
+
+
+def fill_reducing_order(indptr, indices, n: int, method: str = "amd", *, library=None) -> np.ndarray:
+    """A fill-reducing order ``(n,)`` (``order[k]`` = the node eliminated k-th) of a symmetric pattern.
+
+    ``indptr``/``indices``: CSC of the pattern (entries on and below the diagonal are read);
+    ``method``: ``"amd"`` (``cholmod_amd``), ``"metis"`` (``cholmod_metis``, postordered) or
+    ``"nesdis"`` (``cholmod_nested_dissection``: METIS separators, CAMD inside). Used on the
+    *vertex* graph of a block system (see :func:`block_permutation`): p nodes instead of 6p, with
+    36 times fewer entries, for the same elimination order of the blocks.
+    """
+    cholmod = library or load()
+    if cholmod is None:
+        raise OSError(f"CHOLMOD is not available: {unavailable_reason()}")
+    if method not in VERTEX_ORDERINGS:
+        raise ValueError(f"method must be one of {VERTEX_ORDERINGS}, got {method!r}")
+    indptr = np.ascontiguousarray(indptr, dtype=np.int32)
+    indices = np.ascontiguousarray(indices, dtype=np.int32)
+    n = int(n)
+    order = np.zeros(n, dtype=np.int32)
+    if n == 0:
+        return order.astype(np.int64)
+    pattern = _Sparse(
+        nrow=n, ncol=n, nzmax=indices.shape[0], p=indptr.ctypes.data, i=indices.ctypes.data, nz=None, x=None,
+        z=None, stype=-1, itype=_CHOLMOD_INT, xtype=_CHOLMOD_PATTERN, dtype=_CHOLMOD_DOUBLE, sorted=0, packed=1,
+    )  # fmt: skip
+    common = cholmod.new_common()
+    try:
+        _CommonPrefix.from_buffer(common).print = 0
+        if method == "amd":
+            ok = cholmod.amd(ctypes.byref(pattern), None, 0, order.ctypes.data, common)
+        elif method == "metis":
+            ok = cholmod.metis(ctypes.byref(pattern), None, 0, 1, order.ctypes.data, common)
+        else:
+            parent, member = np.zeros(n, dtype=np.int32), np.zeros(n, dtype=np.int32)
+            ok = cholmod.nested_dissection(
+                ctypes.byref(pattern), None, 0, order.ctypes.data, parent.ctypes.data, member.ctypes.data, common
+            ) >= 0
+        status = _CommonPrefix.from_buffer(common).status
+    finally:
+        cholmod.finish(common)
+    if not ok:
+        raise RuntimeError(f"cholmod_{method} failed with CHOLMOD status {status}")
+    return order.astype(np.int64)
+
+
+def block_permutation(order, block: int) -> np.ndarray:
+    """The scalar permutation ``(block·p,)`` eliminating ``block``-sized blocks in the order ``order`` ``(p,)``."""
+    order = np.asarray(order, dtype=np.int64)
+    return (block * order[:, None] + np.arange(block)[None, :]).reshape(-1)

@@ -149,3 +149,45 @@ def test_an_unknown_major_version_is_refused(monkeypatch):
     monkeypatch.setattr(cholmod, "_loaded", [])
     assert cholmod.load() is None
     assert "CHOLMOD 5.2.0" in cholmod.unavailable_reason()
+
+
+@pytest.mark.parametrize("method", cholmod.VERTEX_ORDERINGS)
+def test_fill_reducing_orders_are_permutations_that_eliminate_an_arrow_hub_last(method):
+    n = 60
+    arrow = np.eye(n) * 4.0
+    arrow[0, :] = arrow[:, 0] = 1.0  # node 0 joined to every other node
+    arrow[0, 0] = n
+    indptr, indices, _ = csc(np.tril(arrow))
+    order = cholmod.fill_reducing_order(indptr, indices, n, method)
+    assert sorted(order.tolist()) == list(range(n))
+    assert order[-1] == 0  # eliminating the hub first would fill the whole matrix
+
+
+def test_block_permutation_keeps_each_block_together_in_the_given_order():
+    np.testing.assert_array_equal(cholmod.block_permutation([2, 0, 1], 3), [6, 7, 8, 0, 1, 2, 3, 4, 5])
+    with pytest.raises(ValueError, match="method"):
+        cholmod.fill_reducing_order(np.array([0, 1]), np.array([0]), 1, "colamd")
+
+
+@pytest.mark.parametrize("method", cholmod.VERTEX_ORDERINGS)
+def test_a_given_block_permutation_factorises_to_the_same_solution(method):
+    # a 4×4-block matrix on a random vertex graph, ordered on the vertex graph and expanded
+    rng = np.random.default_rng(8)
+    p, block = 30, 4
+    vertex = (rng.random((p, p)) < 0.1).astype(float)
+    vertex = np.maximum(vertex, vertex.T) + np.eye(p)
+    a = rng.normal(size=(p * block, p * block)) * np.kron(vertex, np.ones((block, block)))
+    # a Aᵀ lives on the blocks of the squared vertex graph, which is then the pattern to order
+    matrix = (a @ a.T) * np.kron(np.linalg.matrix_power(vertex, 2) > 0, np.ones((block, block)))
+    matrix += p * block * np.eye(p * block)  # diagonally dominant: SPD on its own pattern
+    indptr, indices, data = csc(np.tril(matrix))
+    vertex_pattern = np.linalg.matrix_power(vertex, 2) > 0
+    v_indptr, v_indices, _ = csc(np.tril(vertex_pattern.astype(float)))
+    order = cholmod.fill_reducing_order(v_indptr, v_indices, p, method)
+    factor = cholmod.SparseCholesky(indptr, indices, p * block, permutation=cholmod.block_permutation(order, block))
+    assert factor.ordering == "given"
+    factor.factorize(data)
+    rhs = rng.normal(size=p * block)
+    np.testing.assert_allclose(factor.solve(rhs), np.linalg.solve(matrix, rhs), rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="permutation"):
+        cholmod.SparseCholesky(indptr, indices, p * block, permutation=order)

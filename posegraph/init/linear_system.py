@@ -136,6 +136,9 @@ class RelativeLeastSquares:
         indices = np.empty(self._nnz, dtype=np.int32)
         indices[position.ravel()] = (3 * rows[:, None, None] + _AXIS[None, :, None] + 0 * _AXIS[None, None, :]).ravel()
         self._indices = indices
+        # the vertex pattern (both triangles), for ordering the blocks (posegraph.cholmod.fill_reducing_order)
+        self._block_indptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
+        self._block_rows = rows.astype(np.int32)
 
     def _matrix(self, transfer: np.ndarray, weight_transfer: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """CSC ``data`` of H (both triangles) with its per-edge blocks ``W``, ``PᵀWP``, ``−WP``,
@@ -238,9 +241,11 @@ class RelativeLeastSquares:
         required = self.linear_solver == "cholmod"
         if direct:
             if self._symbolic is None:
+                order = cholmod_library.fill_reducing_order(self._block_indptr, self._block_rows, self.num_free, "amd")
                 self._symbolic = cholmod_library.SparseCholesky(
-                    self._indptr, self._indices, 3 * self.num_free, "amd", self.threads
-                )
+                    self._indptr, self._indices, 3 * self.num_free, "amd", self.threads,
+                    permutation=cholmod_library.block_permutation(order, 3),
+                )  # fmt: skip
                 self._threads = NativeThreads(None)  # the binding sets the threads itself
             try:
                 self._symbolic.factorize(data)

@@ -50,6 +50,11 @@ class HessianPattern:
     """``(nnz,)`` int32 CSC row indices, sorted within each column (diagonal entry first)."""
     diagonal: np.ndarray
     """``(6p,)`` int64 positions of the diagonal entries in ``data``."""
+    block_indptr: np.ndarray
+    """``(p + 1,)`` int32 CSC column pointers of the *vertex* pattern: the lower triangle of the
+    p×p graph of free vertices, one entry per stored 6×6 block (for block orderings)."""
+    block_indices: np.ndarray
+    """``(p + number of off-diagonal blocks,)`` int32 rows of that pattern, diagonal first in each column."""
     entry_columns: np.ndarray
     """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
     hessian_positions: np.ndarray
@@ -146,6 +151,10 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
     indices[diagonal_slots] = BLOCK * np.arange(p)[:, None] + low_row
     indices[off_slots] = BLOCK * off_row[:, None] + full_row
     diagonal = indptr[:-1].copy()  # diagonal entry is first in each column
+    block_indptr = np.concatenate(([0], np.cumsum(1 + off_per_col)))
+    block_indices = np.empty(p + key.size, dtype=np.int32)
+    block_indices[block_indptr[:-1]] = np.arange(p)
+    block_indices[block_indptr[off_col] + 1 + rank] = off_row
 
     # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij], raveled per edge.
     # Gathered from small tables (one row per variable or stored block, plus a last row of "not
@@ -181,6 +190,8 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         indptr=indptr.astype(np.int32),
         indices=indices.astype(np.int32),
         diagonal=diagonal,
+        block_indptr=block_indptr.astype(np.int32),
+        block_indices=block_indices,
         entry_columns=np.repeat(np.arange(BLOCK * p, dtype=np.int32), np.diff(indptr)),
         hessian_positions=hessian_positions,
         gradient_positions=gradient_positions,
