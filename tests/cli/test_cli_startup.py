@@ -109,3 +109,28 @@ def test_quiet_without_a_report_prints_nothing(tmp_path, shared_dataset, report)
     assert run.stdout == "" and run.stderr_lines == []
     if report:
         assert json.loads((tmp_path / "r.json").read_text())["file_cost"] > 0
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["optimize", "in.g2o", "-o", "out.g2o", "--method", "gn", "--quiet"],
+        ["compare", "in.g2o", "--gtsam-start", "own"],
+        ["verify-jacobians", "--samples", "10"],
+        ["info", "in.g2o"],
+        ["eval", "a.g2o", "b.g2o", "--no-align"],
+        ["plot", "a.g2o", "b.g2o", "-o", "a.png", "--title", "t"],
+        ["export", "a.g2o", "--open3d", "a.json", "--loop-closures"],
+    ],
+)
+def test_the_parser_built_for_one_command_parses_it_as_the_full_parser_does(argv):
+    import argparse
+
+    import cli
+
+    full = cli.build_parser()
+    commands = next(a for a in full._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert tuple(commands) == cli.COMMANDS
+    expected = vars(full.parse_args(argv))
+    assert expected["func"].__name__ == {"verify-jacobians": "cmd_verify"}.get(argv[0], "cmd_" + argv[0])
+    assert vars(cli.build_parser(only=argv[0]).parse_args(argv)) == expected
