@@ -29,7 +29,6 @@ so a CHOLMOD whose ``cholmod_common`` differs is never written to blindly.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import weakref
 
 import numpy as np
@@ -188,14 +187,19 @@ _loaded: list = []  # [CholmodLibrary or None, reason]
 
 
 def _find_library() -> tuple[ctypes.CDLL, str]:
-    candidates = list(_LIBRARY_NAMES)
-    found = ctypes.util.find_library("cholmod")
-    if found and found not in candidates:
-        candidates.append(found)
     errors = []
-    for name in candidates:
+    for name in _LIBRARY_NAMES:
         try:
             return ctypes.CDLL(name), name
+        except OSError as err:
+            errors.append(str(err))
+    # Only now: ctypes.util imports shutil, subprocess and tempfile (~4 ms of every start otherwise).
+    from ctypes import util
+
+    found = util.find_library("cholmod")
+    if found and found not in _LIBRARY_NAMES:
+        try:
+            return ctypes.CDLL(found), found
         except OSError as err:
             errors.append(str(err))
     raise OSError("; ".join(errors) or "libcholmod not found")

