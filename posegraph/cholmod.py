@@ -35,7 +35,7 @@ import numpy as np
 
 __all__ = [
     "NotPositiveDefiniteError", "CholmodLibrary", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS",
-    "VERTEX_ORDERINGS", "fill_reducing_order", "block_permutation",
+    "VERTEX_ORDERINGS", "NESTED_DISSECTION_VERTICES", "auto_ordering", "fill_reducing_order", "block_permutation",
 ]  # fmt: skip
 
 
@@ -371,6 +371,20 @@ class SparseCholesky:
 
 VERTEX_ORDERINGS = ("amd", "metis", "nesdis")
 """Orderings :func:`fill_reducing_order` computes."""
+
+
+NESTED_DISSECTION_VERTICES = 10_000
+"""From this many free vertices, ``"auto"`` orders by nested dissection instead of AMD
+(:func:`auto_ordering`). Measured here (vertex-graph ordering + analysis, then one numeric
+factorisation): sphere 50k poses AMD 0.23 + 4.78 s, nested dissection 0.40 + 2.42 s; 4-layer slab
+50k 0.18 + 10.2 s against 0.43 + 6.7 s; 25³ cube 0.06 + 5.8 s against 0.13 + 2.6 s. Below a few
+thousand vertices the two factorise alike and AMD analyses twice as fast (torus3D, 5,000 poses:
+12 + 69 ms against 23 + 60 ms; sphere2500 5.5 + 27 ms against 10 + 25 ms)."""
+
+
+def auto_ordering(num_vertices: int) -> str:
+    """The ordering ``"auto"`` stands for on a system of ``num_vertices`` free vertices."""
+    return "nesdis" if num_vertices >= NESTED_DISSECTION_VERTICES else "amd"
 
 
 def fill_reducing_order(indptr, indices, n: int, method: str = "amd", *, library=None) -> np.ndarray:

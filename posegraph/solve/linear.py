@@ -298,7 +298,9 @@ def make_linear_solver(
                 f"[{cholmod_library.unavailable_reason()}] or scikit-sparse (pip install 'posegraph[fast]'); "
                 "use linear_solver='scipy' or 'auto'"
             )
-        return CholmodSolver(pattern, "amd" if ordering == "auto" else ordering, blas_threads)
+        if ordering == "auto":
+            ordering = cholmod_library.auto_ordering(pattern.num_variables)
+        return CholmodSolver(pattern, ordering, blas_threads)
     if kind == "scipy":
         return ScipySolver(pattern)
     raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod' or 'scipy'")

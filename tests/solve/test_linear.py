@@ -122,3 +122,16 @@ def test_vertex_ordering_is_a_permutation_of_free_vertices():
     pattern = spd_system(2, n=40, m=120)[0]
     order = vertex_ordering(pattern)
     assert sorted(order.tolist()) == list(range(pattern.num_variables))
+
+
+def test_auto_ordering_is_amd_for_small_systems_and_nested_dissection_from_the_threshold(monkeypatch, cholmod_backend):
+    from posegraph import cholmod
+
+    pattern, data, full, rhs = spd_system(4)
+    assert pattern.num_variables < cholmod.NESTED_DISSECTION_VERTICES
+    assert "(supernodal, amd" in make_linear_solver("cholmod", pattern).name
+    monkeypatch.setattr(cholmod, "NESTED_DISSECTION_VERTICES", pattern.num_variables)
+    solver = make_linear_solver("cholmod", pattern)
+    assert "(supernodal, nesdis" in solver.name
+    solver.factorize(data)
+    np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(full, rhs), rtol=1e-9, atol=1e-9)
