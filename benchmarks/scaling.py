@@ -15,7 +15,8 @@ process's peak memory is the largest phase peak (resetting the high-water mark a
 
 Fill-in: the solver does not expose CHOLMOD's factor, so the parent analyses the same sparsity at
 the vertex level (one scalar per pose, an SPD matrix with the graph's adjacency) with CHOLMOD's
-AMD and METIS orderings and reports ``nnz(L)`` and the factorisation flops ``Σ_j c_j²`` of the
+AMD, METIS and nested-dissection orderings (``used``: the one the solver's ``"auto"`` picks, AMD
+below 10,000 poses, nested dissection above) and reports ``nnz(L)`` and the factorisation flops ``Σ_j c_j²`` of the
 column counts ``c_j``. Each 6×6 block of the real system multiplies them by 36 (nnz) and 216
 (flops). That is what grows faster than linearly: roughly ``n log n`` for a sphere or a
 few-layer slab (planar-like graphs, separators ~ √n) and ``n^{4/3}`` nnz / ``n²`` flops for a
@@ -138,7 +139,7 @@ def make_dataset(shape: str, size: int, seed: int = 0):
 
 
 def fill_in(graph) -> dict:
-    """Vertex-level CHOLMOD analysis of the graph's normal-equation sparsity, AMD and METIS.
+    """Vertex-level CHOLMOD analysis of the graph's normal-equation sparsity, AMD, METIS and nested dissection.
 
     Returns per ordering ``nnz_L`` (vertex level), ``flops`` (``Σ c_j²``), and the scalar
     estimates ``nnz_L_scalar`` = 36·``nnz_L`` and ``flops_scalar`` = 216·``flops``; plus
@@ -155,7 +156,10 @@ def fill_in(graph) -> dict:
     degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n)
     matrix = (lower + lower.T + sp.diags(degree + 1.0)).tocsc()  # strictly diagonally dominant: SPD
     out = {"nnz_H": int(sp.tril(matrix).nnz)}
-    for ordering in ("amd", "metis"):
+    from posegraph.cholmod import auto_ordering
+
+    out["used"] = auto_ordering(n)
+    for ordering in ("amd", "metis", "nesdis"):
         factor = cholmod.cholesky(matrix, ordering_method=ordering)
         L = factor.L()
         counts = np.diff(L.indptr).astype(np.float64)
@@ -210,7 +214,7 @@ def run_point(shape: str, size: int, timeout: float, log=print, ordering: str = 
     log(
         f"  {dataset.name}: {report['vertices']} poses, {report['edges']} edges: wall {process.wall:.2f} s "
         f"(read {s['read']:.2f}, init {s['initialize']:.2f}, optimise {s['optimize']:.2f} in {report['iterations']} it, "
-        f"write {s['write']:.2f}), peak {point['max_rss'] / 2**30:.2f} GB, nnz(L)≈{fill['amd']['nnz_L_scalar']:.3g} (AMD)"
+        f"write {s['write']:.2f}), peak {point['max_rss'] / 2**30:.2f} GB, nnz(L)≈{fill[fill['used']]['nnz_L_scalar']:.3g} ({fill['used']})"
     )
     return point
 
@@ -244,7 +248,9 @@ def slopes(points: list[dict], top: int = 3) -> dict:
             ),
             "factorize per factorisation": log_log_slope(edges, [p["optimize_split"]["factorize"] / max(1, p["factorizations"]) for p in pts]),
             "nnz(L) AMD": log_log_slope(edges, [p["fill"]["amd"]["nnz_L"] for p in pts]),
+            "nnz(L) nested dissection": log_log_slope(edges, [p["fill"]["nesdis"]["nnz_L"] for p in pts]),
             "flops AMD": log_log_slope(edges, [p["fill"]["amd"]["flops"] for p in pts]),
+            "flops nested dissection": log_log_slope(edges, [p["fill"]["nesdis"]["flops"] for p in pts]),
             "peak memory": log_log_slope(edges, [p["max_rss"] for p in pts]),
         }
     return out
@@ -329,7 +335,9 @@ def plot(points: list[dict], path: Path) -> None:
     fill = [
         ("nnz(L) / nnz(H), AMD", "C8", lambda p: p["fill"]["amd"]["nnz_L"] / p["fill"]["nnz_H"]),
         ("nnz(L) / nnz(H), METIS", "C9", lambda p: p["fill"]["metis"]["nnz_L"] / p["fill"]["nnz_H"]),
+        ("nnz(L) / nnz(H), nested dissection", "C7", lambda p: p["fill"]["nesdis"]["nnz_L"] / p["fill"]["nnz_H"]),
         ("flops / (1000·edges), AMD", "C1", lambda p: p["fill"]["amd"]["flops_scalar"] / (1000 * p["edges"])),
+        ("flops / (1000·edges), nested dissection", "C4", lambda p: p["fill"]["nesdis"]["flops_scalar"] / (1000 * p["edges"])),
     ]
     draw(axes[1, 1], fill, "Why: fill-in of the Cholesky factor (CHOLMOD analysis)", "ratio")
 
@@ -341,7 +349,7 @@ def plot(points: list[dict], path: Path) -> None:
 def markdown_table(points: list[dict]) -> str:
     """The points as a Markdown table (seconds, memory, fill-in), for docs/benchmarks.md."""
     lines = [
-        "| series | poses | edges | iterations | read s | initialise s | optimise s | of which: setup / linearise+assemble per it. / factorise per fact. | write s | whole process s | peak GiB: read / initialise / optimise / write | nnz(L) AMD / METIS (×10⁶, est.) | flops per factorisation AMD (est.) |",
+        "| series | poses | edges | iterations | read s | initialise s | optimise s | of which: setup / linearise+assemble per it. / factorise per fact. | write s | whole process s | peak GiB: read / initialise / optimise / write | nnz(L) AMD / METIS / nested dissection (×10⁶, est.) | flops per factorisation, ordering used (est.) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in sorted(points, key=lambda p: (series_key(p), p["edges"] if "edges" in p else 0)):
@@ -355,8 +363,9 @@ def markdown_table(points: list[dict]) -> str:
             f"{sec['optimize']:.2f} | {split['setup']:.2f} / {(split['linearize'] + split['assemble']) / it:.2f} / "
             f"{split['factorize'] / max(1, p['factorizations']):.2f} | {sec['write']:.2f} | {p['wall']:.1f} | "
             f"{peaks} | "
-            f"{p['fill']['amd']['nnz_L_scalar'] / 1e6:.0f} / {p['fill']['metis']['nnz_L_scalar'] / 1e6:.0f} | "
-            f"{p['fill']['amd']['flops_scalar']:.2g} |"
+            f"{p['fill']['amd']['nnz_L_scalar'] / 1e6:.0f} / {p['fill']['metis']['nnz_L_scalar'] / 1e6:.0f} / "
+            f"{p['fill']['nesdis']['nnz_L_scalar'] / 1e6:.0f} | "
+            f"{p['fill'][p['fill']['used']]['flops_scalar']:.2g} ({p['fill']['used']}) |"
         )
     return "\n".join(lines)
 
