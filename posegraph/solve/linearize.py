@@ -19,6 +19,7 @@ weighted products.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -31,17 +32,38 @@ __all__ = ["EdgeBlocks", "linearize"]
 
 @dataclass(frozen=True, eq=False)
 class EdgeBlocks:
-    """The linearisation of every edge at one set of poses."""
+    """The linearisation of every edge at one set of poses.
+
+    The gradient blocks are computed at once; the Hessian blocks on first use of
+    :attr:`hessian_blocks` (then kept): a solver that finds from the gradient alone that it has
+    converged (:mod:`posegraph.solve.optimizer`, Newton decrement) never pays for them.
+    """
 
     residuals: np.ndarray
     """``(m, 6)`` residuals ``e``."""
     cost: float
     """``½ Σ eᵀ Ω e``."""
-    hessian_blocks: tuple
-    """``(H_ii, H_jj, H_ij)``, each ``(m, 6, 6)``: kept apart (stacking them would copy ~5 MB per
-    iteration on a 6,000-edge graph for nothing: the assembly reads them one by one)."""
     gradient: np.ndarray
     """``(m, 2, 6)``: ``[g_i, g_j]`` per edge."""
+    jacobian_inverse: np.ndarray
+    """``(m, 6, 6)``: ``B = Jr⁻¹(e) = ∂e/∂δ_j``."""
+    adjoint: np.ndarray
+    """``(m, 6, 6)``: ``Ad(X_j⁻¹ X_i)`` (so ``∂e/∂δ_i = −B·Ad``)."""
+    information: np.ndarray
+    """``(m, 6, 6)``: Ω, C-contiguous."""
+
+    @cached_property
+    def hessian_blocks(self) -> tuple:
+        """``(H_ii, H_jj, H_ij)``, each ``(m, 6, 6)``: ``W = BᵀΩB``, ``H_jj = W``, ``H_ij = −AdᵀW``,
+        ``H_ii = −H_ij Ad`` (kept apart: stacking them would copy ~5 MB per iteration on a
+        6,000-edge graph for nothing, the assembly reads them one by one)."""
+        b, adjoint = self.jacobian_inverse, self.adjoint
+        w = np.swapaxes(b, -1, -2) @ (self.information @ b)  # H_jj = Bᵀ Ω B
+        h_ij = np.ascontiguousarray(np.swapaxes(adjoint, -1, -2)) @ w
+        np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
+        h_ii = h_ij @ adjoint
+        np.negative(h_ii, out=h_ii)  # H_ii = Adᵀ W Ad
+        return h_ii, w, h_ij
 
     @property
     def hessian(self) -> np.ndarray:
@@ -66,19 +88,15 @@ def linearize(
         information = np.ascontiguousarray(graph.information)
     b = se3.right_jacobian_inverse(residuals)  # ∂e/∂δ_j = B
     adjoint = se3.adjoint(se3.inverse(relative))  # Ad(X_j⁻¹ X_i)
-    adjoint_t = np.ascontiguousarray(np.swapaxes(adjoint, -1, -2))
-    w = np.swapaxes(b, -1, -2) @ (information @ b)  # H_jj = Bᵀ Ω B
-    h_ij = adjoint_t @ w
-    np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
-    h_ii = h_ij @ adjoint
-    np.negative(h_ii, out=h_ii)  # H_ii = Adᵀ W Ad
     omega_e = (information @ residuals[..., None])[..., 0]
     g_j = (np.swapaxes(b, -1, -2) @ omega_e[..., None])[..., 0]  # g_j = Bᵀ Ω e
-    g_i = -(adjoint_t @ g_j[..., None])[..., 0]  # g_i = −Adᵀ g_j
+    g_i = -(np.swapaxes(adjoint, -1, -2) @ g_j[..., None])[..., 0]  # g_i = −Adᵀ g_j
     cost = 0.5 * float(np.einsum("mi,mi->", residuals, omega_e))
     return EdgeBlocks(
         residuals=residuals,
         cost=cost,
-        hessian_blocks=(h_ii, w, h_ij),
         gradient=np.stack([g_i, g_j], axis=1),
+        jacobian_inverse=b,
+        adjoint=adjoint,
+        information=information,
     )

@@ -44,7 +44,9 @@ iteration first solves its new system with the factorisation it still holds (Sha
 H still agrees with that factorisation along it (:data:`CHORD_AGREEMENT`), it promises a fast
 enough decrease (:data:`CHORD_CONTRACTION` of the last one, or already within the tolerances) and
 the cost confirms it (gain ratio); the factorisation is then kept for the iteration after. Else
-the iteration factorises as usual, one solve later (:func:`_reused_factor_step`).
+the iteration factorises as usual, one solve later (:func:`_chord_step`, :func:`_chord_step_decrease`).
+Before any of this, the same solve gives the Newton decrement under the held factorisation: when
+it is negligible the run stops without assembling H (:func:`_decrement_negligible`).
 
 Gauge: fixed vertices and the anchor of every component without one
 (:func:`posegraph.graph.held_vertices`) have no variables at all — their
@@ -199,7 +201,7 @@ within 3e-10 relative of the runs without them."""
 
 CHORD_AGREEMENT = 0.9
 """A step from the previous factorisation ``M`` is taken only if its model decrease under the new
-H is at least this fraction of ``−½gᵀδ``, its value were H equal to M (see :func:`_reused_factor_step`)."""
+H is at least this fraction of ``−½gᵀδ``, its value were H equal to M (see :func:`_chord_step_decrease`)."""
 
 CHORD_MIN_GAIN = 0.9
 """The previous factorisation is tried only after a full step whose gain ratio was at least this
@@ -207,28 +209,35 @@ CHORD_MIN_GAIN = 0.9
 region, where H changes little from one iterate to the next."""
 
 
-def _reused_factor_step(
-    solver, pattern, data, gradient: np.ndarray, cost_now: float, params: SolverParams, last_decrease: float
-):
-    """The chord step ``δ = −M⁻¹ g`` from the factorisation ``M`` the solver still holds, if it is worth taking.
+def _chord_step(solver, gradient: np.ndarray):
+    """``(δ, gᵀδ)`` for the chord step ``δ = −M⁻¹ g`` with the factorisation ``M`` the solver holds.
 
-    ``M`` is the damped matrix of the previous iteration, whose full step was accepted; ``data`` and
-    ``gradient`` are the new linearisation's lower-triangle H and g. Near the optimum H barely
-    changes between iterations, so ``δ`` is nearly the Gauss-Newton step (Shamanskii's "chord"
-    Newton method), for one triangular solve instead of a factorisation. Its model decrease under
-    the *new* H,
-
-        L(0) − L(δ) = −gᵀδ − ½ δᵀHδ,
-
-    is what LM's gain ratio divides by. Returns ``(δ, gᵀδ, L(0) − L(δ))`` when that decrease is
-    at least :data:`CHORD_AGREEMENT` of ``−½gᵀδ`` (its value if H were M) and either within the
-    convergence tolerances or at most :data:`CHORD_CONTRACTION` times ``last_decrease``; else
-    None: then the caller factorises as usual, having spent one solve and one sparse product.
+    ``M`` is the (damped) matrix of an earlier iteration of this run, whose full step was accepted
+    with a gain ratio near 1. ``−½gᵀδ = ½gᵀM⁻¹g`` is the Newton decrement under ``M``
+    (:func:`_decrement_negligible`). ``δ`` is None if it is not finite.
     """
     step = solver.solve(-gradient)
     if not np.all(np.isfinite(step)):
-        return None, float("nan"), float("nan")
-    slope = float(np.einsum("i,i->", gradient, step))
+        return None, float("nan")
+    return step, float(np.einsum("i,i->", gradient, step))
+
+
+def _chord_step_decrease(
+    pattern, data, step: np.ndarray, slope: float, cost_now: float, params: SolverParams, last_decrease: float
+) -> float | None:
+    """The model decrease of the chord step ``δ`` under the *new* H, if the step is worth taking.
+
+    Near the optimum H barely changes between iterations, so ``δ`` is nearly the Gauss-Newton step
+    (Shamanskii's "chord" Newton method), for one triangular solve instead of a factorisation. Its
+    model decrease under the new H (lower triangle ``data``),
+
+        L(0) − L(δ) = −gᵀδ − ½ δᵀHδ,
+
+    is what LM's gain ratio divides by. Returned when it is at least :data:`CHORD_AGREEMENT` of
+    ``−½gᵀδ`` (its value if H were M) and either within the convergence tolerances or at most
+    :data:`CHORD_CONTRACTION` times ``last_decrease``; else None: then the caller factorises as
+    usual, having spent one solve and one sparse product.
+    """
     # δᵀHδ from the lower triangle only: 2 δᵀ(tril(H) δ) − Σ H_kk δ_k²
     lower_product = lower_matvec(pattern, data, step)
     curvature = 2.0 * float(np.einsum("i,i->", step, lower_product)) - float(
@@ -240,10 +249,10 @@ def _reused_factor_step(
     # nothing about how far the optimum still is (sphere_bignoise: 0.24, and a Newton step then
     # still found twice the chord step's decrease), so a new factorisation is due.
     if not predicted > 0 or predicted < CHORD_AGREEMENT * (-0.5 * slope):
-        return None, slope, predicted
+        return None
     if _converged(predicted, cost_now, params) is None and predicted > CHORD_CONTRACTION * last_decrease:
-        return None, slope, predicted
-    return step, slope, predicted
+        return None
+    return predicted
 
 
 DECREMENT_MARGIN = 100.0
@@ -348,33 +357,43 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
 
     for iteration in range(1, params.max_iterations + 1):
         t0 = time.perf_counter()
-        blocks = linearize(poses, graph, information, current_errors)
+        blocks = linearize(poses, graph, information, current_errors)  # gradient; H blocks on demand
         t1 = time.perf_counter()
-        data = hessian_values(pattern, blocks.hessian_blocks)
         gradient = gradient_values(pattern, blocks.gradient)
         t2 = time.perf_counter()
+        seconds_linearize, seconds_assemble = t1 - t0, t2 - t1
         seconds_factorize = seconds_solve = 0.0
-        diagonal = data[pattern.diagonal]
-        if params.diagonal_damping:
-            damping = np.clip(diagonal, params.min_diagonal, params.max_diagonal)
-        else:
-            damping = np.ones_like(diagonal)
 
         accepted, attempts, stop = False, 0, None
         step_norm, gain, lambda_tried, scale = 0.0, float("nan"), lam, float("nan")
         predicted = float("nan")
         new_cost = current_cost
+        chord, slope = None, float("nan")
         if reusable is not None:
-            # Near the optimum the last factorisation still gives an almost exact Newton step, which
-            # may finish the run without another factorisation (see _reused_factor_step).
+            # Near the optimum the held factorisation may show, from the gradient alone, that the
+            # run has converged (then H is never assembled), or give a chord step (see _chord_step).
             tc = time.perf_counter()
-            step, slope, chord_predicted = _reused_factor_step(
-                solver, pattern, data, gradient, current_cost, params, last_decrease
-            )
-            if step is None and _decrement_negligible(-0.5 * slope, current_cost, reusable, params):
+            chord, slope = _chord_step(solver, gradient)
+            if _decrement_negligible(-0.5 * slope, current_cost, reusable, params):
                 stop = CONVERGED_DECREMENT
-            elif step is not None:
-                predicted = chord_predicted
+            seconds_solve += time.perf_counter() - tc
+        if stop is None:
+            ta = time.perf_counter()
+            hessian_blocks = blocks.hessian_blocks
+            tb = time.perf_counter()
+            data = hessian_values(pattern, hessian_blocks)
+            seconds_linearize += tb - ta
+            seconds_assemble += time.perf_counter() - tb
+            diagonal = data[pattern.diagonal]
+            if params.diagonal_damping:
+                damping = np.clip(diagonal, params.min_diagonal, params.max_diagonal)
+            else:
+                damping = np.ones_like(diagonal)
+        if chord is not None and stop is None:
+            tc = time.perf_counter()
+            chord_predicted = _chord_step_decrease(pattern, data, chord, slope, current_cost, params, last_decrease)
+            if chord_predicted is not None:
+                step, predicted = chord, chord_predicted
                 trial = _retract(poses, free, step.reshape(-1, 6))
                 trial_errors, new_cost = evaluate(trial)
                 decrease = current_cost - new_cost
@@ -491,8 +510,8 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
             gain_ratio=gain,
             accepted=accepted,
             attempts=attempts,
-            seconds_linearize=t1 - t0,
-            seconds_assemble=t2 - t1,
+            seconds_linearize=seconds_linearize,
+            seconds_assemble=seconds_assemble,
             seconds_factorize=seconds_factorize,
             seconds_solve=seconds_solve,
             step_scale=scale,
