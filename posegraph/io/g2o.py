@@ -869,19 +869,18 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     if poses.shape != (graph.num_vertices, 4, 4):
         raise ValueError(f"poses must have shape {(graph.num_vertices, 4, 4)}, got {poses.shape}")
     vertex_values = np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)
-    measurement_values = np.concatenate(
-        [graph.measurements[:, :3, 3], so3.to_quaternion(graph.measurements[:, :3, :3])], axis=1
-    )
-    g2o_information = graph.information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT]
     vertex_line = VERTEX_TAG + " %d" + " %r" * 7 + "\n"
-    edge_line = EDGE_TAG + " %d %d" + " %r" * 7 + "%s\n"
     parts = [vertex_line % (i, *v) for i, v in zip(graph.ids.tolist(), vertex_values.tolist())]
     parts += [f"{FIX_TAG} {i}\n" for i in graph.ids[graph.fixed].tolist()]
     source = graph.edge_source
     if source is not None and source.format == EDGE_TAG and source.matches(graph):
-        head = EDGE_TAG + " "
-        parts += [head + line.rstrip() + "\n" for line in source.lines]
+        parts.append(_copied_lines(EDGE_TAG, source.lines))
         return "".join(parts)
+    measurement_values = np.concatenate(
+        [graph.measurements[:, :3, 3], so3.to_quaternion(graph.measurements[:, :3, :3])], axis=1
+    )
+    g2o_information = graph.information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT]
+    edge_line = EDGE_TAG + " %d %d" + " %r" * 7 + "%s\n"
     ends = zip(
         graph.ids[graph.edge_from].tolist(),
         graph.ids[graph.edge_to].tolist(),
@@ -890,6 +889,17 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     )
     parts += [edge_line % (i, j, *v, information) for i, j, v, information in ends]
     return "".join(parts)
+
+
+def _copied_lines(tag: str, lines: list) -> str:
+    """``tag rest\n`` for each kept line, trailing blanks dropped (one C-level join when none has any)."""
+    if not lines:
+        return ""
+    head = "\n" + tag + " "
+    text = head.join(lines)
+    if " \n" in text or "\t\n" in text or "\r\n" in text or text[-1:].isspace():
+        text = head.join(line.rstrip() for line in lines)
+    return tag + " " + text + "\n"
 
 
 def _information_texts(upper: np.ndarray) -> list[str]:
