@@ -303,7 +303,7 @@ def _solver_options(p: argparse.ArgumentParser) -> None:
                    help="stop when an iteration lowers the cost by at most this much "
                         "(default: the solver's, 1e-12)")
     p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy"), default="auto",
-                   help="sparse Cholesky backend: CHOLMOD (scikit-sparse) or scipy; auto picks "
+                   help="sparse Cholesky backend: CHOLMOD (the system library, else scikit-sparse) or scipy; auto picks "
                         "CHOLMOD when installed")
 
 
