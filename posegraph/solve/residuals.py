@@ -46,6 +46,22 @@ __all__ = ["edge_residuals", "cost", "weighted_cost", "edge_jacobians", "edge_er
 #     ∂e/∂δ_i = −Jr⁻¹(e) · Ad(X_j⁻¹ X_i).
 
 
+CHUNK_EDGES = 8192
+"""Edges per pass of the per-edge arithmetic (:func:`edge_errors`, :func:`posegraph.solve.linearize.linearize`).
+
+It runs on slices of this many edges (a loop over ~m/8192 slices, never over edges) so that its
+temporaries (~0.3 kB per edge each) stay in the caches: in one pass over all edges the cost per
+edge grew with the graph — B, Ad and the three Hessian blocks took 1.13 µs per edge at 100,000
+edges and 1.49 µs at 800,000, the temporaries streaming through memory — and by slices it stays at
+0.91–0.97 µs (measured here). A graph of up to 8192 edges is one slice."""
+
+
+def edge_slices(m: int):
+    """``slice`` objects covering ``range(m)`` in runs of :data:`CHUNK_EDGES` (none when ``m == 0``)."""
+    step = CHUNK_EDGES
+    return [slice(start, min(start + step, m)) for start in range(0, m, step)]
+
+
 def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
     """``(m, 4, 4)`` ``X_i⁻¹ X_j`` for every edge."""
     return se3.between(poses[graph.edge_from], poses[graph.edge_to])
@@ -53,8 +69,12 @@ def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
 
 def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
     """Relative poses ``X_i⁻¹ X_j`` ``(m, 4, 4)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, 6)``."""
-    relative = _relative_poses(np.asarray(poses, dtype=np.float64), graph)
-    residuals = se3.log(se3.between(graph.measurements, relative))
+    poses = np.asarray(poses, dtype=np.float64)
+    m = graph.num_edges
+    relative, residuals = np.empty((m, 4, 4)), np.empty((m, 6))
+    for part in edge_slices(m):  # slices, for the caches (CHUNK_EDGES)
+        relative[part] = se3.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
+        residuals[part] = se3.log(se3.between(graph.measurements[part], relative[part]))
     return relative, residuals
 
 
