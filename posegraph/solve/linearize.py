@@ -58,16 +58,16 @@ class EdgeBlocks:
         """``(H_ii, H_jj, H_ij)``, each ``(m, 6, 6)``: ``W = BᵀΩB``, ``H_jj = W``, ``H_ij = −AdᵀW``,
         ``H_ii = −H_ij Ad`` (kept apart: stacking them would copy ~5 MB per iteration on a
         6,000-edge graph for nothing, the assembly reads them one by one)."""
-        m = self.residuals.shape[0]
-        h_ii, w, h_ij = np.empty((m, 6, 6)), np.empty((m, 6, 6)), np.empty((m, 6, 6))
-        for part in _residuals.edge_slices(m):  # slices, for the caches (residuals.CHUNK_EDGES)
+        def compute(part):
             b, adjoint = self.jacobian_inverse[part], self.adjoint[part]
-            w[part] = np.swapaxes(b, -1, -2) @ (self.information[part] @ b)  # H_jj = Bᵀ Ω B
-            np.matmul(np.swapaxes(adjoint, -1, -2), w[part], out=h_ij[part])
-            np.negative(h_ij[part], out=h_ij[part])  # H_ij = −Adᵀ W
-            np.matmul(h_ij[part], adjoint, out=h_ii[part])
-            np.negative(h_ii[part], out=h_ii[part])  # H_ii = Adᵀ W Ad
-        return h_ii, w, h_ij
+            w = np.swapaxes(b, -1, -2) @ (self.information[part] @ b)  # H_jj = Bᵀ Ω B
+            h_ij = np.swapaxes(adjoint, -1, -2) @ w
+            np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
+            h_ii = h_ij @ adjoint
+            np.negative(h_ii, out=h_ii)  # H_ii = Adᵀ W Ad
+            return h_ii, w, h_ij
+
+        return _residuals.by_slices(self.residuals.shape[0], compute)  # slices, for the caches
 
     @property
     def hessian(self) -> np.ndarray:
@@ -90,18 +90,18 @@ def linearize(
     relative, residuals = edge_errors(poses, graph) if errors is None else errors
     if information is None:
         information = np.ascontiguousarray(graph.information)
-    m = residuals.shape[0]
-    b, adjoint, gradient = np.empty((m, 6, 6)), np.empty((m, 6, 6)), np.empty((m, 2, 6))
-    cost = 0.0
-    for part in _residuals.edge_slices(m):  # slices, for the caches (residuals.CHUNK_EDGES)
+    def compute(part):
         e = residuals[part]
-        b[part] = se3.right_jacobian_inverse(e)  # ∂e/∂δ_j = B
-        adjoint[part] = se3.adjoint(se3.inverse(relative[part]))  # Ad(X_j⁻¹ X_i)
+        b = se3.right_jacobian_inverse(e)  # ∂e/∂δ_j = B
+        adjoint = se3.adjoint(se3.inverse(relative[part]))  # Ad(X_j⁻¹ X_i)
         omega_e = information[part] @ e[..., None]
-        g_j = np.swapaxes(b[part], -1, -2) @ omega_e  # g_j = Bᵀ Ω e
-        gradient[part, 1] = g_j[..., 0]
-        gradient[part, 0] = -(np.swapaxes(adjoint[part], -1, -2) @ g_j)[..., 0]  # g_i = −Adᵀ g_j
-        cost += 0.5 * float(np.einsum("mi,mi->", e, omega_e[..., 0]))
+        g_j = np.swapaxes(b, -1, -2) @ omega_e  # g_j = Bᵀ Ω e
+        g_i = -(np.swapaxes(adjoint, -1, -2) @ g_j)  # g_i = −Adᵀ g_j
+        terms = np.einsum("mi,mi->m", e, omega_e[..., 0])  # eᵀ Ω e per edge
+        return b, adjoint, np.stack([g_i[..., 0], g_j[..., 0]], axis=1), terms
+
+    b, adjoint, gradient, terms = _residuals.by_slices(residuals.shape[0], compute)  # for the caches
+    cost = 0.5 * float(np.sum(terms))
     return EdgeBlocks(
         residuals=residuals,
         cost=cost,

@@ -62,6 +62,26 @@ def edge_slices(m: int):
     return [slice(start, min(start + step, m)) for start in range(0, m, step)]
 
 
+def by_slices(m: int, compute):
+    """``compute(part)`` for each slice of :func:`edge_slices`, its arrays joined along the edges.
+
+    ``compute`` returns a tuple of arrays whose first axis is the slice's edges. One slice (up to
+    :data:`CHUNK_EDGES` edges) returns them as they are; several are written into arrays allocated
+    once, from the first slice's shapes and dtypes.
+    """
+    parts = edge_slices(m)
+    if len(parts) <= 1:
+        return compute(slice(0, m))
+    first = compute(parts[0])
+    out = tuple(np.empty((m,) + a.shape[1:], dtype=a.dtype) for a in first)
+    for target, value in zip(out, first):
+        target[parts[0]] = value
+    for part in parts[1:]:
+        for target, value in zip(out, compute(part)):
+            target[part] = value
+    return out
+
+
 def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
     """``(m, 4, 4)`` ``X_i⁻¹ X_j`` for every edge."""
     return se3.between(poses[graph.edge_from], poses[graph.edge_to])
@@ -70,12 +90,12 @@ def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
 def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
     """Relative poses ``X_i⁻¹ X_j`` ``(m, 4, 4)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, 6)``."""
     poses = np.asarray(poses, dtype=np.float64)
-    m = graph.num_edges
-    relative, residuals = np.empty((m, 4, 4)), np.empty((m, 6))
-    for part in edge_slices(m):  # slices, for the caches (CHUNK_EDGES)
-        relative[part] = se3.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
-        residuals[part] = se3.log(se3.between(graph.measurements[part], relative[part]))
-    return relative, residuals
+
+    def compute(part):
+        relative = se3.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
+        return relative, se3.log(se3.between(graph.measurements[part], relative))
+
+    return by_slices(graph.num_edges, compute)  # slices, for the caches (CHUNK_EDGES)
 
 
 def edge_residuals(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
