@@ -134,3 +134,14 @@ def test_the_parser_built_for_one_command_parses_it_as_the_full_parser_does(argv
     expected = vars(full.parse_args(argv))
     assert expected["func"].__name__ == {"verify-jacobians": "cmd_verify"}.get(argv[0], "cmd_" + argv[0])
     assert vars(cli.build_parser(only=argv[0]).parse_args(argv)) == expected
+
+
+def test_freed_memory_is_kept_for_reuse_unless_the_user_tunes_malloc():
+    import ctypes
+
+    if not sys.platform.startswith("linux") or not hasattr(ctypes.CDLL(None), "gnu_get_libc_version"):
+        pytest.skip("glibc's mallopt only")
+    code = "import cli; print(cli._keep_freed_memory())"
+    assert run_python(code).stdout.split() == ["True"]
+    for variable in ("MALLOC_TOP_PAD_", "GLIBC_TUNABLES"):
+        assert run_python(code, **{variable: "131072" if variable != "GLIBC_TUNABLES" else "glibc.malloc.top_pad=131072"}).stdout.split() == ["False"]
