@@ -29,10 +29,13 @@ import numpy as np
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
 
-def edge_checksum(ids, edge_from, edge_to, measurements, information) -> int:
-    """CRC-32 of the bytes of the arrays that define the edges, ids included (each as contiguous float64/int64)."""
+def edge_checksum(graph: "PoseGraph") -> int:
+    """CRC-32 of the bytes of the arrays that define ``graph``'s edges, ids included (each as contiguous float64/int64)."""
     crc = 0
-    for array, dtype in ((ids, np.int64), (edge_from, np.int64), (edge_to, np.int64), (measurements, np.float64), (information, np.float64)):
+    for array, dtype in (
+        (graph.ids, np.int64), (graph.edge_from, np.int64), (graph.edge_to, np.int64),
+        (graph.measurements, np.float64), (graph.information, np.float64),
+    ):  # fmt: skip
         crc = zlib.crc32(np.ascontiguousarray(array, dtype=dtype).data, crc)
     return crc
 
@@ -54,13 +57,16 @@ class EdgeSource:
     lines: list
     """``m`` strings: the text after the tag of each edge line, as read (no newline)."""
     checksum: int
-    """:func:`edge_checksum` of the graph's edges when read."""
+    """:func:`edge_checksum` of the graph when read."""
+
+    @classmethod
+    def of(cls, graph: "PoseGraph", format: str, lines: list) -> "EdgeSource":
+        """The lines ``lines`` (in ``format``) as the statement of ``graph``'s edges as they are now."""
+        return cls(format, lines, edge_checksum(graph))
 
     def matches(self, graph: "PoseGraph") -> bool:
         """Whether these lines still state ``graph``'s edges (same count and checksum)."""
-        return len(self.lines) == graph.num_edges and self.checksum == edge_checksum(
-            graph.ids, graph.edge_from, graph.edge_to, graph.measurements, graph.information
-        )
+        return len(self.lines) == graph.num_edges and self.checksum == edge_checksum(graph)
 
 
 @dataclass(frozen=True, eq=False)

@@ -96,13 +96,14 @@ from __future__ import annotations
 import os
 import re
 import warnings
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 
 from posegraph.atomic import atomic_path
 from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, OutputError
-from posegraph.graph import EdgeSource, PoseGraph, connected_components, edge_checksum
+from posegraph.graph import EdgeSource, PoseGraph, connected_components
 from posegraph.lie import so3
 
 __all__ = [
@@ -362,8 +363,7 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
     if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
         # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
         # lines state the edges exactly, and the writer copies them (EdgeSource).
-        checksum = edge_checksum(graph.ids, graph.edge_from, graph.edge_to, graph.measurements, graph.information)
-        object.__setattr__(graph, "edge_source", EdgeSource(EDGE_TAG, lines[EDGE_TAG].rests, checksum))
+        graph = replace(graph, edge_source=EdgeSource.of(graph, EDGE_TAG, lines[EDGE_TAG].rests))
     if graph.num_edges:
         notes += _components_note(graph, path)
     for note in notes:
