@@ -36,6 +36,7 @@ import numpy as np
 __all__ = [
     "NotPositiveDefiniteError", "CholmodLibrary", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS",
     "VERTEX_ORDERINGS", "NESTED_DISSECTION_VERTICES", "auto_ordering", "fill_reducing_order", "block_permutation",
+    "block_cholesky",
 ]  # fmt: skip
 
 
@@ -80,6 +81,17 @@ class _Dense(ctypes.Structure):
         ("d", ctypes.c_size_t), ("x", ctypes.c_void_p), ("z", ctypes.c_void_p),
         ("xtype", ctypes.c_int), ("dtype", ctypes.c_int),
     ]  # fmt: skip
+
+
+def _pattern_header(indptr: np.ndarray, indices: np.ndarray, n: int) -> _Sparse:
+    """A ``cholmod_sparse`` header over int32 CSC arrays of order ``n``: pattern only, lower triangle read.
+
+    It points at the arrays' memory, so the caller keeps them alive while the header is used.
+    """
+    return _Sparse(
+        nrow=n, ncol=n, nzmax=indices.shape[0], p=indptr.ctypes.data, i=indices.ctypes.data, nz=None, x=None,
+        z=None, stype=-1, itype=_CHOLMOD_INT, xtype=_CHOLMOD_PATTERN, dtype=_CHOLMOD_DOUBLE, sorted=0, packed=1,
+    )  # fmt: skip
 
 
 class _FactorHead(ctypes.Structure):
@@ -284,11 +296,7 @@ class SparseCholesky:
         self._finalizer = weakref.finalize(self, _release, cholmod, self._common, self._factor)
         self._threads = NativeThreads(threads)
         self.threads_active = self._threads.active
-        self._matrix = _Sparse(
-            nrow=self.n, ncol=self.n, nzmax=self.nnz, p=self.indptr.ctypes.data, i=self.indices.ctypes.data,
-            nz=None, x=None, z=None, stype=-1, itype=_CHOLMOD_INT, xtype=_CHOLMOD_PATTERN, dtype=_CHOLMOD_DOUBLE,
-            sorted=0, packed=1,
-        )  # fmt: skip
+        self._matrix = _pattern_header(self.indptr, self.indices, self.n)
         if permutation is not None:
             self.permutation = np.ascontiguousarray(permutation, dtype=np.int32)
             if self.permutation.shape != (self.n,):
@@ -407,10 +415,7 @@ def fill_reducing_order(indptr, indices, n: int, method: str = "amd", *, library
     order = np.zeros(n, dtype=np.int32)
     if n == 0:
         return order.astype(np.int64)
-    pattern = _Sparse(
-        nrow=n, ncol=n, nzmax=indices.shape[0], p=indptr.ctypes.data, i=indices.ctypes.data, nz=None, x=None,
-        z=None, stype=-1, itype=_CHOLMOD_INT, xtype=_CHOLMOD_PATTERN, dtype=_CHOLMOD_DOUBLE, sorted=0, packed=1,
-    )  # fmt: skip
+    pattern = _pattern_header(indptr, indices, n)
     common = cholmod.new_common()
     try:
         _CommonPrefix.from_buffer(common).print = 0
@@ -435,3 +440,24 @@ def block_permutation(order, block: int) -> np.ndarray:
     """The scalar permutation ``(block·p,)`` eliminating ``block``-sized blocks in the order ``order`` ``(p,)``."""
     order = np.asarray(order, dtype=np.int64)
     return (block * order[:, None] + np.arange(block)[None, :]).reshape(-1)
+
+
+def block_cholesky(
+    indptr, indices, block_indptr, block_indices, num_blocks: int, block: int, ordering: str = "auto",
+    threads: int | None = 1,
+) -> SparseCholesky:
+    """:class:`SparseCholesky` of a matrix made of ``block``×``block`` blocks, analysed once.
+
+    ``indptr``/``indices``: the scalar CSC pattern (order ``block·num_blocks``);
+    ``block_indptr``/``block_indices``: its block (vertex) pattern, one entry per stored block.
+    ``ordering`` ``"auto"`` (:func:`auto_ordering`) or one of :data:`VERTEX_ORDERINGS` orders the
+    vertex graph and expands the order to the blocks (:func:`fill_reducing_order`,
+    :func:`block_permutation`); any other key of :data:`ORDERINGS` orders the scalar pattern.
+    """
+    if ordering == "auto":
+        ordering = auto_ordering(num_blocks)
+    n = block * num_blocks
+    if ordering not in VERTEX_ORDERINGS:
+        return SparseCholesky(indptr, indices, n, ordering, threads)
+    order = fill_reducing_order(block_indptr, block_indices, num_blocks, ordering)
+    return SparseCholesky(indptr, indices, n, ordering, threads, permutation=block_permutation(order, block))

@@ -241,11 +241,9 @@ class RelativeLeastSquares:
         required = self.linear_solver == "cholmod"
         if direct:
             if self._symbolic is None:
-                method = cholmod_library.auto_ordering(self.num_free)
-                order = cholmod_library.fill_reducing_order(self._block_indptr, self._block_rows, self.num_free, method)
-                self._symbolic = cholmod_library.SparseCholesky(
-                    self._indptr, self._indices, 3 * self.num_free, "amd", self.threads,
-                    permutation=cholmod_library.block_permutation(order, 3),
+                self._symbolic = cholmod_library.block_cholesky(
+                    self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, 3,
+                    threads=self.threads,
                 )  # fmt: skip
                 self._threads = NativeThreads(None)  # the binding sets the threads itself
             try:

@@ -107,19 +107,14 @@ class CholmodSolver(LinearSolver):
         self.ordering = ordering
         self.backend = backend
         if backend == "direct":
-            permutation = None
-            if ordering in cholmod_library.VERTEX_ORDERINGS:
-                # Ordered on the vertex graph (p nodes, one entry per 6×6 block) and expanded to the
-                # blocks: the same elimination order as ordering the 6p×6p pattern, found from 36
-                # times fewer entries (parking-garage: analysis 6.8 → 5.7 ms, factorisation 9.7 →
-                # 8.0 ms with AMD, the block postorder helping the supernodes).
-                order = cholmod_library.fill_reducing_order(
-                    pattern.block_indptr, pattern.block_indices, pattern.num_variables, ordering
-                )
-                permutation = cholmod_library.block_permutation(order, BLOCK)
-            self._cholesky = cholmod_library.SparseCholesky(
-                pattern.indptr, pattern.indices, pattern.dimension, ordering, blas_threads, permutation=permutation
-            )
+            # Ordered on the vertex graph (p nodes, one entry per 6×6 block) and expanded to the
+            # blocks: the same elimination order as ordering the 6p×6p pattern, found from 36
+            # times fewer entries (parking-garage: analysis 6.8 → 5.7 ms, factorisation 9.7 →
+            # 8.0 ms with AMD, the block postorder helping the supernodes).
+            self._cholesky = cholmod_library.block_cholesky(
+                pattern.indptr, pattern.indices, pattern.block_indptr, pattern.block_indices,
+                pattern.num_variables, BLOCK, ordering, blas_threads,
+            )  # fmt: skip
             active = self._cholesky.threads_active
         else:
             from sksparse import cholmod

@@ -82,11 +82,6 @@ def by_slices(m: int, compute):
     return out
 
 
-def _relative_poses(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
-    """``(m, 4, 4)`` ``X_i⁻¹ X_j`` for every edge."""
-    return se3.between(poses[graph.edge_from], poses[graph.edge_to])
-
-
 def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
     """Relative poses ``X_i⁻¹ X_j`` ``(m, 4, 4)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, 6)``."""
     poses = np.asarray(poses, dtype=np.float64)
