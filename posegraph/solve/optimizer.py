@@ -210,6 +210,11 @@ CHORD_MIN_GAIN = 0.9
 region, where H changes little from one iterate to the next."""
 
 
+def _in_newton_region(gain: float) -> bool:
+    """Whether a full step's gain ratio was within :data:`CHORD_MIN_GAIN` of 1 (the model was accurate)."""
+    return CHORD_MIN_GAIN <= gain <= 1.0 / CHORD_MIN_GAIN
+
+
 def _chord_step(solver, gradient: np.ndarray):
     """``(δ, gᵀδ)`` for the chord step ``δ = −M⁻¹ g`` with the factorisation ``M`` the solver holds.
 
@@ -401,14 +406,13 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
                 gain = decrease / predicted if np.isfinite(new_cost) else -np.inf
                 if gain > params.min_gain_ratio:
                     accepted, scale, lambda_tried = True, 1.0, reusable
-                    chord_lambda = reusable
                     step_norm = float(np.sqrt(np.einsum("i,i->", step, step)))
                 else:
                     new_cost, predicted, gain = current_cost, float("nan"), float("nan")
             seconds_solve += time.perf_counter() - tc
         reusable = None
-        if accepted and CHORD_MIN_GAIN <= gain <= 1.0 / CHORD_MIN_GAIN:
-            reusable = chord_lambda  # the same factorisation may serve the next iteration too
+        if accepted and _in_newton_region(gain):
+            reusable = lambda_tried  # the same factorisation may serve the next iteration too
         while not accepted and stop is None:  # (every accepting branch below also breaks)
             attempts += 1
             lambda_tried = lam
@@ -475,7 +479,7 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
                     accepted = True
                     if lm:
                         lam = shrink_lambda(lam, gain)
-                    if scale == 1.0 and params.reuse_factorization and CHORD_MIN_GAIN <= gain <= 1.0 / CHORD_MIN_GAIN:
+                    if scale == 1.0 and params.reuse_factorization and _in_newton_region(gain):
                         reusable = lambda_tried  # the factorisation behind this step, for the next iteration
                     break
                 scale = float("nan")
