@@ -62,6 +62,22 @@ def test_python_dash_m_is_the_same_program():
         assert module.stdout == run_cli(flag).stdout
 
 
+def test_the_console_script_entry_point_is_the_packaged_program(capsys):
+    """pyproject's ``posegraph`` script names ``main`` inside the package, and no top-level module is installed."""
+    import importlib
+    import tomllib
+
+    from tests.cli.conftest import PROJECT_ROOT
+
+    config = tomllib.loads((PROJECT_ROOT / "pyproject.toml").read_text())
+    module_name, function_name = config["project"]["scripts"]["posegraph"].split(":")
+    assert module_name.split(".")[0] == "posegraph"
+    assert "py-modules" not in config.get("tool", {}).get("setuptools", {})
+    main = getattr(importlib.import_module(module_name), function_name)
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == run_cli("--version").stdout
+
+
 def test_info_figures_match_gtsam_and_the_graph(shared_dataset):
     gtsam = pytest.importorskip("gtsam")
     from posegraph.graph import connected_components
