@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 
-from posegraph.cli.common import EXIT_OK, Status, UsageError, check_output, read_graph, repair_option, require_matplotlib
+from posegraph.cli.common import (
+    EXIT_OK, Status, UsageError, check_output, read_graph, repair_option, require_matplotlib,
+)
 
 NAME = "plot"
 HELP = "draw trajectories in 3D (PNG, PDF, SVG)"

@@ -13,7 +13,7 @@ import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError
 from posegraph.graph import PoseGraph, connected_components
-from posegraph.io.g2o_format import FIX_TAG, TWO_D_TAGS, VERTEX3_TAG, VERTEX_TAG, EDGE_TAG
+from posegraph.io.g2o_format import EDGE_TAG, FIX_TAG, TWO_D_TAGS, VERTEX3_TAG, VERTEX_TAG
 from posegraph.io.g2o_lines import Lines
 
 QUATERNION_NORM_TOLERANCE = 1e-6
@@ -114,7 +114,7 @@ def check_information(
     """Check (and, if ``repair``, repair) the ``(m, 6, 6)`` information matrices, ``[ω; v]`` order.
 
     Returns the matrices, an error for the first refused one, and warning texts (repaired or
-    singular matrices); see the module docstring for the policy. Rows holding NaN or
+    singular matrices); see ``docs/g2o.md`` for the policy. Rows holding NaN or
     infinities are left to :func:`check_finite`.
     """
     finite = np.isfinite(information).all(axis=(1, 2))

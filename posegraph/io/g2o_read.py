@@ -76,7 +76,7 @@ def read_g2o(
     repair_information:
         If True, an information matrix that is not positive semi-definite
         is replaced by the nearest matrix in Frobenius norm whose eigenvalues
-        are at least :data:`REPAIR_EIGENVALUE_FLOOR` times its largest (the
+        are at least :data:`~posegraph.io.g2o_checks.REPAIR_EIGENVALUE_FLOOR` times its largest (the
         nearest PSD matrix, kept positive definite), with one warning; by
         default such a matrix is an error.
 
@@ -92,7 +92,7 @@ def read_g2o(
     Raises
     ------
     G2oFormatError
-        A malformed line or an invalid number (see the module docstring).
+        A malformed line or an invalid number (see ``docs/g2o.md``).
     GraphError
         Neither vertices nor edges, no edges (unless ``require_edges=False``),
         no vertices with ``require_edges=False``, a duplicate vertex id, an
@@ -204,9 +204,13 @@ def _values(records: dict[str, np.ndarray], lines: dict[str, Lines], path: str, 
     information, info_error, info_notes = check_information(
         edges.information, edges.numbers, edges.tags, path, repair=repair_information
     )
-    finite = [check_finite(records[tag], lines[tag].numbers, tag, record.fields, path) for tag, record in RECORDS.items()]
+    finite = [
+        check_finite(records[tag], lines[tag].numbers, tag, record.fields, path) for tag, record in RECORDS.items()
+    ]
     raise_first(finite + zero_errors + [info_error])
-    notes = quaternion_note([records[tag]["q"] for tag in quaternion_tags], [lines[tag].numbers for tag in quaternion_tags], path)
+    notes = quaternion_note(
+        [records[tag]["q"] for tag in quaternion_tags], [lines[tag].numbers for tag in quaternion_tags], path
+    )
     return vertices, edges, information, notes + info_notes
 
 
@@ -258,7 +262,9 @@ def _in_file_order(parts, tags: list[str], records: dict[str, np.ndarray]):
     return type(parts)(*(array[order] for array in parts))
 
 
-def _merge_vertices(records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]) -> _Poses:
+def _merge_vertices(
+    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]
+) -> _Poses:
     """The vertices of every vertex tag (``VERTEX_SE3:QUAT``, ``VERTEX3``) together, in file order."""
     tags = _tags_of("vertex")
     parts = _Poses(
