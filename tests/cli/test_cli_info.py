@@ -27,7 +27,7 @@ def test_every_subcommand_help_has_examples(command):
     import contextlib
     import io
 
-    import cli
+    from posegraph import cli
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
@@ -45,6 +45,37 @@ def test_installed_script_is_the_same_program():
     installed = subprocess.run([script, "--version"], capture_output=True, text=True, timeout=60)
     assert installed.returncode == 0
     assert installed.stdout == run_cli("--version").stdout
+
+
+def test_python_dash_m_is_the_same_program():
+    """``python -m posegraph`` and ``python cli.py`` (the checkout's shim) print the same help and version."""
+    import os
+    import sys
+
+    from tests.cli.conftest import PROJECT_ROOT
+
+    env = dict(os.environ, PYTHONPATH=str(PROJECT_ROOT))
+    for flag in ("--help", "--version"):
+        module = subprocess.run([sys.executable, "-m", "posegraph", flag], capture_output=True, text=True,
+                                timeout=60, env=env)
+        assert module.returncode == 0, module.stderr
+        assert module.stdout == run_cli(flag).stdout
+
+
+def test_the_console_script_entry_point_is_the_packaged_program(capsys):
+    """pyproject's ``posegraph`` script names ``main`` inside the package, and no top-level module is installed."""
+    import importlib
+    import tomllib
+
+    from tests.cli.conftest import PROJECT_ROOT
+
+    config = tomllib.loads((PROJECT_ROOT / "pyproject.toml").read_text())
+    module_name, function_name = config["project"]["scripts"]["posegraph"].split(":")
+    assert module_name.split(".")[0] == "posegraph"
+    assert "py-modules" not in config.get("tool", {}).get("setuptools", {})
+    main = getattr(importlib.import_module(module_name), function_name)
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == run_cli("--version").stdout
 
 
 def test_info_figures_match_gtsam_and_the_graph(shared_dataset):

@@ -1,10 +1,10 @@
-"""Messages for missing optional packages and interruptions, checked in-process (cli.main) for speed."""
+"""Messages for missing optional packages and interruptions, checked in-process (posegraph.cli.main) for speed."""
 
 from __future__ import annotations
 
 import pytest
 
-import cli
+from posegraph import cli
 
 
 def one_error_line(capsys) -> str:

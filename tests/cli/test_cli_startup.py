@@ -27,11 +27,11 @@ def test_solver_imports_leave_out_what_the_default_path_does_not_use():
     proc = run_python(
         """
         import gc, os, sys
-        import cli
-        cli._single_threaded_blas()  # before numpy loads, as _import_solver_modules does first
+        from posegraph.cli import startup
+        startup.single_threaded_blas()  # before numpy loads, as import_solver_modules does first
         from posegraph import cholmod
         cholmod.load = lambda: None  # the path without the direct CHOLMOD binding, which imports scipy.sparse
-        cli._import_solver_modules()
+        startup.import_solver_modules()
         unused = ["numpy.f2py", "numpy.testing", "numpy.ma", "numpy.polynomial", "scipy.sparse.csgraph",
                   "scipy.sparse.linalg", "scipy.linalg"]
         print("loaded", [name for name in unused if name in sys.modules])
@@ -62,7 +62,7 @@ def test_with_the_direct_cholmod_binding_a_whole_run_imports_no_scipy(tmp_path, 
     proc = run_python(
         f"""
         import sys
-        import cli
+        from posegraph import cli
         code = cli.main(["optimize", {str(source)!r}, "-o", {str(output)!r}, "--quiet", "--report", {str(report)!r}])
         print(code, sorted(name for name in sys.modules if name.split(".")[0] in ("scipy", "sksparse")))
         """
@@ -75,8 +75,9 @@ def test_with_the_direct_cholmod_binding_a_whole_run_imports_no_scipy(tmp_path, 
 def test_an_explicit_openblas_thread_count_is_kept():
     proc = run_python(
         """
-        import os, cli
-        cli._import_solver_modules()
+        import os
+        from posegraph.cli import startup
+        startup.import_solver_modules()
         print(os.environ["OPENBLAS_NUM_THREADS"])
         """,
         OPENBLAS_NUM_THREADS="2",
@@ -126,14 +127,15 @@ def test_quiet_without_a_report_prints_nothing(tmp_path, shared_dataset, report)
 def test_the_parser_built_for_one_command_parses_it_as_the_full_parser_does(argv):
     import argparse
 
-    import cli
+    from posegraph.cli import parser
 
-    full = cli.build_parser()
+    full = parser.build_parser()
     commands = next(a for a in full._actions if isinstance(a, argparse._SubParsersAction)).choices
-    assert tuple(commands) == cli.COMMANDS
+    assert tuple(commands) == parser.COMMANDS
     expected = vars(full.parse_args(argv))
-    assert expected["func"].__name__ == {"verify-jacobians": "cmd_verify"}.get(argv[0], "cmd_" + argv[0])
-    assert vars(cli.build_parser(only=argv[0]).parse_args(argv)) == expected
+    assert expected["func"] is parser.command_module(argv[0]).run
+    assert expected["func"].__module__ == "posegraph.cli." + argv[0].replace("-", "_")
+    assert vars(parser.build_parser(only=argv[0]).parse_args(argv)) == expected
 
 
 def test_freed_memory_is_kept_for_reuse_unless_the_user_tunes_malloc():
@@ -141,7 +143,7 @@ def test_freed_memory_is_kept_for_reuse_unless_the_user_tunes_malloc():
 
     if not sys.platform.startswith("linux") or not hasattr(ctypes.CDLL(None), "gnu_get_libc_version"):
         pytest.skip("glibc's mallopt only")
-    code = "import cli; print(cli._keep_freed_memory())"
+    code = "from posegraph.cli import startup; print(startup.keep_freed_memory())"
     assert run_python(code).stdout.split() == ["True"]
     for variable in ("MALLOC_TOP_PAD_", "GLIBC_TUNABLES"):
         assert run_python(code, **{variable: "131072" if variable != "GLIBC_TUNABLES" else "glibc.malloc.top_pad=131072"}).stdout.split() == ["False"]

@@ -1,0 +1,225 @@
+"""What the subcommands share: messages, progress lines, output checks, reading, option types.
+
+Only the standard library is imported here; the project's modules are imported inside the
+functions that use them (see :mod:`posegraph.cli`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+PROG = "posegraph"
+
+EXIT_OK = 0
+EXIT_NOT_CONVERGED = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+OPTIONAL_MODULES = frozenset({"gtsam", "open3d", "matplotlib", "mpl_toolkits", "sksparse"})
+"""Packages some commands or options need; their absence is a usage error, not a crash."""
+
+MAX_WARNINGS_SHOWN = 20
+"""Warnings beyond this many are counted, not printed (a file can repeat one repair per line)."""
+
+
+# --------------------------------------------------------------------------------------------
+# messages
+
+
+class UsageError(Exception):
+    """A command-line mistake found after parsing (e.g. conflicting outputs)."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line and lets main() choose the exit status."""
+
+    def error(self, message):
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+def error(message: str) -> None:
+    print(f"{PROG}: error: {message}", file=sys.stderr, flush=True)
+
+
+def warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr, flush=True)
+
+
+class WarningPrinter:
+    """``warnings.showwarning`` replacement: one line per warning, without source lines."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def __call__(self, message, category, filename, lineno, file=None, line=None):
+        self.count += 1
+        if self.count <= MAX_WARNINGS_SHOWN:
+            text = " ".join(str(message).split())
+            if not _is_input_warning(category):
+                text = f"{category.__name__}: {text}"
+            warn(text)
+
+    def finish(self) -> None:
+        if self.count > MAX_WARNINGS_SHOWN:
+            warn(f"{self.count - MAX_WARNINGS_SHOWN} more warnings not shown")
+
+
+def _is_input_warning(category) -> bool:
+    from posegraph.errors import InputWarning
+
+    return issubclass(category, InputWarning)
+
+
+class Status:
+    """Progress and phase lines on stderr, silenced by ``--quiet``."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+
+    def __call__(self, message: str) -> None:
+        if not self.quiet:
+            print(message, file=sys.stderr, flush=True)
+
+
+TICKER_DELAY = 1.0
+"""Seconds a phase runs before :class:`Ticker` shows its elapsed time."""
+
+
+class Ticker:
+    """While a long phase runs, an elapsed-time line on an interactive stderr (redrawn in place).
+
+    Reading, initialising and writing report no fraction done, so the line shows the phase and its
+    seconds so far; it appears only after :data:`TICKER_DELAY` seconds and only on a terminal, so
+    quick runs, pipes and log files see just the final phase line.
+    """
+
+    def __init__(self, status: Status, label: str) -> None:
+        self.label = label
+        self.enabled = not status.quiet and sys.stderr.isatty()
+        self._done = None
+
+    def __enter__(self):
+        if self.enabled:
+            import threading
+
+            self._done = threading.Event()
+            self._start = time.perf_counter()
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        if self._done.wait(TICKER_DELAY):
+            return
+        while not self._done.wait(0.25):
+            sys.stderr.write(f"\r{self.label} … {time.perf_counter() - self._start:.1f} s")
+            sys.stderr.flush()
+
+    def __exit__(self, *exc) -> None:
+        if self._done is not None:
+            self._done.set()
+            self._thread.join()
+            sys.stderr.write("\r\033[K")  # clear the ticker line before the final message
+            sys.stderr.flush()
+
+
+class Timer:
+    """``with Timer() as t:`` … then ``t.seconds``, the block's wall-clock time."""
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+        self.seconds = 0.0
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self.start
+
+
+def fmt_cost(x: float) -> str:
+    return f"{x:.12g}"
+
+
+# --------------------------------------------------------------------------------------------
+# paths and inputs
+
+
+def check_output(path: str, *, inputs=(), allow_input: bool = False, what: str = "output") -> None:
+    """Fail before any work if ``path`` cannot be written as asked."""
+    from posegraph.errors import OutputError
+
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise OutputError(f"cannot write the {what}: folder {folder} does not exist", path=path)
+    if os.path.isdir(path):
+        raise OutputError(f"cannot write the {what}: it is a folder", path=path)
+    for source in inputs:
+        if _same_file(path, source) and not allow_input:
+            hint = " (pass --force to overwrite it)" if what == "result" else ""
+            raise OutputError(f"the {what} would overwrite the input {source}{hint}", path=path)
+
+
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_distinct(paths) -> None:
+    """A :class:`UsageError` if two of the given (non-empty) output paths are the same file."""
+    paths = [p for p in paths if p]
+    for k, a in enumerate(paths):
+        for b in paths[k + 1 :]:
+            if _same_file(a, b):
+                raise UsageError(f"two outputs are the same file: {a} and {b}")
+
+
+def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False):
+    """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``."""
+    from posegraph.io.g2o import read_g2o
+
+    with Ticker(status, f"reading {path}"), Timer() as t:
+        graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information)
+    status(f"read {path}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
+    return graph, t.seconds
+
+
+def require_matplotlib() -> None:
+    from posegraph.plot import require_matplotlib
+
+    require_matplotlib()
+
+
+# --------------------------------------------------------------------------------------------
+# options
+
+
+def repair_option(p: argparse.ArgumentParser) -> None:
+    """``--repair-information``, which every subcommand reading a graph takes."""
+    p.add_argument("--repair-information", action="store_true",
+                   help="replace each information matrix that is not positive semi-definite by the nearest one "
+                        "(Frobenius norm; eigenvalues clipped to 1e-9 times the largest), with one warning, "
+                        "instead of refusing the file")
+
+
+def non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {text}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0: {text}")
+    return value

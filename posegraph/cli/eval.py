@@ -1,0 +1,53 @@
+"""``posegraph eval``: trajectory errors (ATE, RPE) of an estimate against a reference."""
+
+from __future__ import annotations
+
+from posegraph.cli.common import EXIT_OK, repair_option, warn
+
+NAME = "eval"
+HELP = "trajectory errors (ATE, RPE) against a reference"
+DESCRIPTION = (
+    "Absolute trajectory error after a least-squares SE(3) alignment (Umeyama/Horn, no scale) "
+    "and relative pose error between consecutive ids, as rmse/mean/median/std/min/max in the way "
+    "evo reports them. Poses are matched by vertex id."
+)
+EXAMPLES = """
+  posegraph eval optimised.g2o ground-truth.g2o
+  posegraph eval optimised.g2o ground-truth.g2o --json > errors.json"""
+
+
+def add_arguments(p) -> None:
+    p.add_argument("estimate", metavar="EST.g2o", help="estimated poses")
+    p.add_argument("reference", metavar="GT.g2o", help="reference (ground-truth) poses")
+    repair_option(p)
+    p.add_argument("--no-align", action="store_true", help="compute ATE without aligning the trajectories")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def run(args) -> int:
+    from posegraph.evaluate import evaluate, read_trajectory
+
+    estimate_ids, estimate_poses = read_trajectory(args.estimate, repair_information=args.repair_information)
+    reference_ids, reference_poses = read_trajectory(args.reference, repair_information=args.repair_information)
+    result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
+                      align=not args.no_align, source=args.estimate)
+    if result.num_matched < max(result.num_estimate, result.num_reference):
+        warn(f"compared the {result.num_matched} vertex ids present in both files "
+             f"({result.num_estimate} in {args.estimate}, {result.num_reference} in {args.reference})")
+    if args.json:
+        import json
+
+        print(json.dumps(result.as_dict(), indent=2))
+        return EXIT_OK
+    print(f"estimate:  {args.estimate}")
+    print(f"reference: {args.reference}")
+    print(f"matched:   {result.num_matched} poses by vertex id; ATE after "
+          + ("a least-squares SE(3) alignment (Umeyama, no scale)" if not args.no_align else "no alignment")
+          + "; RPE between consecutive ids")
+    names = ("rmse", "mean", "median", "std", "min", "max")
+    print(f"{'':<22}" + "".join(f"{n:>12}" for n in names))
+    rows = (("ATE translation", result.ate_translation), ("ATE rotation (deg)", result.ate_rotation),
+            ("RPE translation", result.rpe_translation), ("RPE rotation (deg)", result.rpe_rotation))
+    for label, stats in rows:
+        print(f"{label:<22}" + "".join(f"{getattr(stats, n):>12.6g}" for n in names))
+    return EXIT_OK

@@ -1,0 +1,46 @@
+"""``posegraph plot``: trajectories of one or more graphs drawn in 3D."""
+
+from __future__ import annotations
+
+import os
+
+from posegraph.cli.common import (
+    EXIT_OK, Status, UsageError, check_output, read_graph, repair_option, require_matplotlib,
+)
+
+NAME = "plot"
+HELP = "draw trajectories in 3D (PNG, PDF, SVG)"
+DESCRIPTION = (
+    "Draw each graph's vertex positions joined in id order, its loop-closure edges faintly, "
+    "several files overlaid with a legend. Needs matplotlib (pip install \"posegraph[plot]\")."
+)
+EXAMPLES = """
+  posegraph plot sphere2500.g2o -o sphere.png
+  posegraph plot before.g2o after.g2o -o before-after.png --labels before after"""
+
+
+def add_arguments(p) -> None:
+    p.add_argument("input", metavar="IN.g2o", help="pose graph to draw")
+    p.add_argument("more", metavar="MORE.g2o", nargs="*", help="more graphs overlaid")
+    repair_option(p)
+    p.add_argument("-o", "--output", metavar="FIG.png", required=True,
+                   help="figure file; its extension picks the format")
+    p.add_argument("--labels", nargs="+", metavar="NAME", help="legend names, one per input (default file names)")
+    p.add_argument("--title", help="figure title")
+    p.add_argument("--no-loop-closures", action="store_true", help="draw the trajectories only")
+
+
+def run(args) -> int:
+    inputs = [args.input, *args.more]
+    check_output(args.output, inputs=inputs, what="figure")
+    if args.labels is not None and len(args.labels) != len(inputs):
+        raise UsageError(f"--labels needs {len(inputs)} names (one per input), got {len(args.labels)}")
+    require_matplotlib()
+    from posegraph.plot import plot_trajectories
+
+    status = Status(True)
+    graphs = [read_graph(path, status, require_edges=False, repair_information=args.repair_information)[0]
+              for path in inputs]
+    labels = args.labels or [os.path.basename(p) for p in inputs]
+    plot_trajectories(args.output, graphs, labels, loop_closures=not args.no_loop_closures, title=args.title)
+    return EXIT_OK

@@ -1,0 +1,56 @@
+"""The entry point: parse, run the subcommand, and turn what went wrong into one line and an exit status."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+from posegraph.cli.common import (
+    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_USAGE, OPTIONAL_MODULES, PROG, UsageError, WarningPrinter, error,
+)
+from posegraph.cli.parser import COMMANDS, build_parser
+
+
+def main(argv=None) -> int:
+    """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
+    printer = WarningPrinter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            warnings.showwarning = printer
+            try:
+                argv = sys.argv[1:] if argv is None else list(argv)
+                named = argv[0] if argv and argv[0] in COMMANDS else None
+                args = build_parser(only=named).parse_args(argv)
+                return args.func(args)
+            finally:
+                printer.finish()
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted; nothing written", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+    except UsageError as exc:
+        error(str(exc))
+        return EXIT_USAGE
+    except SystemExit as exc:  # --help and --version
+        return exc.code if isinstance(exc.code, int) else 0
+    except ImportError as exc:
+        # An optional dependency is missing: say so in one line (our messages include how to install
+        # it). Any other ImportError is a bug of ours and keeps its traceback.
+        if exc.name not in OPTIONAL_MODULES and "pip install" not in str(exc):
+            raise
+        error(" ".join(str(exc).split()))
+        return EXIT_USAGE
+    except BrokenPipeError:  # pragma: no cover - e.g. `posegraph info x.g2o | head -1`
+        sys.stderr.close()
+        return EXIT_NOT_CONVERGED
+    except OSError as exc:
+        where = exc.filename if exc.filename is not None else ""
+        error(f"{where}: {exc.strerror or exc}" if where else str(exc))
+        return EXIT_USAGE
+    except ValueError as exc:
+        from posegraph.errors import InputError
+
+        if isinstance(exc, InputError):
+            error(" ".join(str(exc).split()))
+            return EXIT_USAGE
+        raise

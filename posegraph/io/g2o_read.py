@@ -1,0 +1,363 @@
+"""Reading g2o files: text to :class:`~posegraph.graph.PoseGraph`, in four checked stages.
+
+The stages, in the order their errors are reported (the first problem in the file wins within a
+stage): the format of each line (:mod:`posegraph.io.g2o_lines`), the values (finite numbers,
+quaternions, information matrices: :mod:`posegraph.io.g2o_checks`), an empty graph, then the
+graph (duplicate ids, unknown vertices, self-loops). Each vertex and edge tag is read as its
+entry of :data:`posegraph.io.g2o_format.RECORDS` says; a new tag of the same kind is a new
+entry there. The format, checks and repairs are described in ``docs/g2o.md``.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+
+from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning
+from posegraph.graph import EdgeSource, PoseGraph
+from posegraph.io.g2o_checks import (
+    check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
+    refuse_two_d, topology, unit_quaternions,
+)
+from posegraph.io.g2o_format import EDGE3_TAG, EDGE_TAG, FIX_TAG, READ_TAGS, RECORDS, VERTEX3_TAG, VERTEX_TAG
+from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
+from posegraph.lie import so3
+
+
+class _Poses(NamedTuple):
+    """Vertices of every vertex tag, in file order."""
+
+    ids: np.ndarray  # (n,) int64
+    rotations: np.ndarray  # (n, 3, 3)
+    translations: np.ndarray  # (n, 3)
+    numbers: np.ndarray  # (n,) 1-based line numbers
+
+
+class _Measurements(NamedTuple):
+    """Edges of every edge tag, in file order."""
+
+    ids: np.ndarray  # (m, 2) int64 vertex ids
+    rotations: np.ndarray  # (m, 3, 3)
+    translations: np.ndarray  # (m, 3)
+    information: np.ndarray  # (m, 6, 6) in [ω; v] order
+    numbers: np.ndarray  # (m,) 1-based line numbers
+    tags: np.ndarray  # (m,) the tag of each line (for messages)
+
+
+class _Fix(NamedTuple):
+    """Ids of the ``FIX`` lines and the line each came from."""
+
+    ids: np.ndarray  # (k,) int64
+    numbers: np.ndarray  # (k,)
+
+
+def read_g2o(
+    path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False
+) -> PoseGraph:
+    """Read a 3D pose graph from a g2o file.
+
+    Parameters
+    ----------
+    path:
+        The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
+        lines, and gtsam's older ``VERTEX3`` / ``EDGE3``; see ``docs/g2o.md``
+        for the format and the checks).
+    require_edges:
+        True (default) reads a graph to optimise: edges are required, and a
+        file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
+        the vertices its edges name, at the identity pose, with a warning
+        (the initialisers provide a start). False reads a trajectory: vertex
+        lines are required (a file without any is a :class:`GraphError`:
+        there are no poses to read) and a file without edges gives ``m = 0``.
+    repair_information:
+        If True, an information matrix that is not positive semi-definite
+        is replaced by the nearest matrix in Frobenius norm whose eigenvalues
+        are at least :data:`~posegraph.io.g2o_checks.REPAIR_EIGENVALUE_FLOOR` times its largest (the
+        nearest PSD matrix, kept positive definite), with one warning; by
+        default such a matrix is an error.
+
+    Returns
+    -------
+    PoseGraph
+        ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
+        (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information
+        (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
+        ``gtsam.readG2o`` does), ``fixed (n,)`` and ``source`` (the absolute
+        path read).
+
+    Raises
+    ------
+    G2oFormatError
+        A malformed line or an invalid number (see ``docs/g2o.md``).
+    GraphError
+        Neither vertices nor edges, no edges (unless ``require_edges=False``),
+        no vertices with ``require_edges=False``, a duplicate vertex id, an
+        edge or ``FIX`` naming a missing vertex, or a self-loop.
+    InputError
+        The file cannot be opened.
+
+    Warns
+    -----
+    InputWarning
+        Skipped tags, normalised quaternions, vertices created for a file
+        without vertex lines, repaired or singular information matrices,
+        several connected components (one warning each, after all checks pass).
+    """
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as handle:
+            data = handle.read()
+    except OSError as err:
+        raise InputError(f"cannot read the file: {err.strerror or err}", name) from err
+    # utf-8-sig drops a byte-order mark, which would otherwise glue itself to the first tag.
+    text = data.decode("utf-8-sig", errors="replace")
+    return _parse(
+        text, name, source=os.path.abspath(name), require_edges=require_edges, repair_information=repair_information
+    )
+
+
+def _parse(text: str, path: str, source: str | None, require_edges: bool, repair_information: bool) -> PoseGraph:
+    groups, first_line = group_lines(text)
+    empty = Lines(np.zeros(0, dtype=np.int64), [])
+    lines = {tag: groups.get(tag, empty) for tag in RECORDS}
+    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS}
+    # Stage 1: the format of each line.
+    refuse_two_d(groups, first_line, path)
+    records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, path)
+    notes = _skipped_note(skipped, first_line, path)
+    # Stage 2: the values.
+    vertices, edges, information, value_notes = _values(records, lines, path, repair_information)
+    notes += value_notes
+    # Stage 3: an empty graph.
+    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, require_edges, path)
+    notes += empty_notes
+    # Stage 4: the graph.
+    edge_index, fixed = topology(vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path)
+    graph = PoseGraph(
+        ids=vertices.ids.copy(),
+        poses=_matrices(vertices.rotations, vertices.translations),
+        edge_from=edge_index[:, 0].copy(),
+        edge_to=edge_index[:, 1].copy(),
+        measurements=_matrices(edges.rotations, edges.translations),
+        information=information,
+        fixed=fixed,
+        source=source,
+    )
+    if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
+        # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
+        # lines state the edges exactly, and the writer copies them (EdgeSource).
+        graph = replace(graph, edge_source=EdgeSource.of(graph, EDGE_TAG, lines[EDGE_TAG].rests))
+    if graph.num_edges:
+        notes += components_note(graph, path)
+    for note in notes:
+        warnings.warn(note, InputWarning, stacklevel=3)
+    return graph
+
+
+def _parse_lines(fix_lines: Lines, lines: dict[str, Lines], path: str) -> tuple[dict[str, np.ndarray], _Fix]:
+    """Stage 1: every vertex and edge tag's records (:data:`RECORDS`) and the ``FIX`` ids; the
+    first malformed line or negative vertex id raised."""
+    records: dict[str, np.ndarray] = {}
+    errors: list[InputError | None] = []
+    for tag, record in RECORDS.items():
+        records[tag], error = parse_records(lines[tag], tag, record, path)
+        errors.append(error)
+        if error is None and record.n_ints == 1:
+            errors.append(check_negative_ids(records[tag]["id"], lines[tag].numbers, tag, path))
+    fix_ids, fix_numbers, fix_error = parse_fix(fix_lines, path)
+    raise_first(errors + [fix_error])
+    return records, _Fix(fix_ids, fix_numbers)
+
+
+def _skipped_note(skipped: dict[str, int], first_line: dict[str, int], path: str) -> list[str]:
+    """One warning counting the lines whose tags are not read, per tag."""
+    if not skipped:
+        return []
+    listing = ", ".join(f"{tag} ×{count}" for tag, count in sorted(skipped.items()))
+    first = min(first_line[tag] for tag in skipped)
+    count = sum(skipped.values())
+    return [f"{path}:{first}: skipped {count} line(s) with tags posegraph does not read: {listing}"]
+
+
+def _values(records: dict[str, np.ndarray], lines: dict[str, Lines], path: str, repair_information: bool):
+    """Stage 2: ``(vertices, edges, information (m,6,6), warning texts)``, the first bad value raised.
+
+    Quaternions are normalised (a zero one is an error), Euler angles turned into matrices, the
+    information matrices checked (and repaired if asked), every number checked to be finite.
+    """
+    rotations: dict[str, np.ndarray] = {}
+    zero_errors: list[InputError | None] = []
+    quaternion_tags = [tag for tag, record in RECORDS.items() if record.rotation == "quaternion"]
+    for tag, record in RECORDS.items():
+        if record.rotation == "quaternion":
+            q, error = unit_quaternions(records[tag]["q"], lines[tag].numbers, tag, path)
+            rotations[tag] = _rotations_or_identity(q)
+            zero_errors.append(error)
+        else:
+            rotations[tag] = _euler_rotations(records[tag]["rpy"])
+    vertices = _merge_vertices(records, lines, rotations)
+    edges = _merge_edges(records, lines, rotations)
+    information, info_error, info_notes = check_information(
+        edges.information, edges.numbers, edges.tags, path, repair=repair_information
+    )
+    finite = [
+        check_finite(records[tag], lines[tag].numbers, tag, record.fields, path) for tag, record in RECORDS.items()
+    ]
+    raise_first(finite + zero_errors + [info_error])
+    notes = quaternion_note(
+        [records[tag]["q"] for tag in quaternion_tags], [lines[tag].numbers for tag in quaternion_tags], path
+    )
+    return vertices, edges, information, notes + info_notes
+
+
+def _vertices_or_refusal(
+    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], require_edges: bool, path: str
+) -> tuple[_Poses, list[str]]:
+    """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file)."""
+    if len(vertices.ids) == 0:
+        if len(edges.ids) == 0:
+            also = f" (the file has only: {', '.join(sorted(skipped))})" if skipped else ""
+            raise GraphError(
+                f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}, nor edges): there is no 3D pose graph "
+                f"to read{also}",
+                path,
+            )
+        if not require_edges:
+            raise GraphError(
+                f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}): its {len(edges.ids)} edge(s) name "
+                "vertices but it gives no poses to read",
+                path,
+            )
+        vertices, note = _vertices_named_by_edges(edges, path)
+        return vertices, [note]
+    if len(edges.ids) == 0 and require_edges:
+        raise GraphError(f"the file has no {EDGE_TAG} lines (nor {EDGE3_TAG}): there is nothing to optimise", path)
+    return vertices, []
+
+
+def _rotations_or_identity(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of quaternions ``(k, 4)``; the identity for a zero or non-finite one.
+
+    Such a quaternion is reported by the checks of the same stage; the placeholder only lets
+    the checks of all lines run before the first problem in the file is raised.
+    """
+    norm = np.einsum("ij,ij->i", q, q)
+    usable = np.isfinite(norm) & (norm > 0)
+    return so3.from_quaternion(q if usable.all() else np.where(usable[:, None], q, [0.0, 0.0, 0.0, 1.0]))
+
+
+def _tags_of(kind: str) -> list[str]:
+    return [tag for tag, record in RECORDS.items() if record.kind == kind]
+
+
+def _in_file_order(parts, tags: list[str], records: dict[str, np.ndarray]):
+    """``parts`` (a tuple of arrays concatenated tag by tag) sorted by line number when several tags contribute."""
+    if sum(len(records[tag]) > 0 for tag in tags) < 2:
+        return parts
+    order = np.argsort(parts.numbers, kind="stable")
+    return type(parts)(*(array[order] for array in parts))
+
+
+def _merge_vertices(
+    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]
+) -> _Poses:
+    """The vertices of every vertex tag (``VERTEX_SE3:QUAT``, ``VERTEX3``) together, in file order."""
+    tags = _tags_of("vertex")
+    parts = _Poses(
+        ids=np.concatenate([records[tag]["id"] for tag in tags]),
+        rotations=np.concatenate([rotations[tag] for tag in tags]),
+        translations=np.concatenate([records[tag]["t"] for tag in tags]),
+        numbers=np.concatenate([lines[tag].numbers for tag in tags]),
+    )
+    return _in_file_order(parts, tags, records)
+
+
+def _merge_edges(
+    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]
+) -> _Measurements:
+    """The edges of every edge tag together, in file order, information in ``[ω; v]`` order.
+
+    g2o's ``EDGE_SE3:QUAT`` information is ``[t; R]`` and is permuted; gtsam reads ``EDGE3``'s 21
+    entries as the upper triangle of its own ``[ω; v]`` matrix, unpermuted, and so do we
+    (``Record.information_from_upper``).
+    """
+    tags = _tags_of("edge")
+    parts = _Measurements(
+        ids=np.concatenate([records[tag]["ids"] for tag in tags]),
+        rotations=np.concatenate([rotations[tag] for tag in tags]),
+        translations=np.concatenate([records[tag]["t"] for tag in tags]),
+        information=np.concatenate(
+            [records[tag]["info"][:, RECORDS[tag].information_from_upper].reshape(-1, 6, 6) for tag in tags]
+        ),
+        numbers=np.concatenate([lines[tag].numbers for tag in tags]),
+        tags=np.array([tag for tag in tags for _ in range(len(records[tag]))], dtype=object),
+    )
+    return _in_file_order(parts, tags, records)
+
+
+def _euler_rotations(angles: np.ndarray) -> np.ndarray:
+    """:func:`rotations_from_roll_pitch_yaw`, silent on infinite angles (reported by the value checks)."""
+    with np.errstate(invalid="ignore"):
+        return rotations_from_roll_pitch_yaw(angles)
+
+
+def rotations_from_roll_pitch_yaw(angles: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` from ``angles (..., 3)`` = (roll φ, pitch θ, yaw ψ), radians.
+
+    ``R = Rz(ψ) · Ry(θ) · Rx(φ)`` — yaw about z, then pitch about the new y, then roll about the
+    new x (intrinsic z-y'-x''); the convention of gtsam's ``Rot3::Ypr(yaw, pitch, roll)`` /
+    ``Rot3::RzRyRx(roll, pitch, yaw)``, which gtsam's reader applies to ``VERTEX3``/``EDGE3``'s
+    ``roll pitch yaw`` fields.
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    cos, sin = np.cos(angles), np.sin(angles)
+    cr, cp, cy = cos[..., 0], cos[..., 1], cos[..., 2]
+    sr, sp, sy = sin[..., 0], sin[..., 1], sin[..., 2]
+    rows = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def _vertices_named_by_edges(edges: _Measurements, path: str) -> tuple[_Poses, str]:
+    """Vertices for a file with edges but no vertex lines: the ids its edges name, sorted, at the identity.
+
+    This is how gtsam's ``sphere2500.txt`` comes (``EDGE3`` lines only; ``gtsam.readG2o`` returns
+    no initial values for it). The identity start is meaningless; the initialisers provide one.
+    """
+    negative = np.flatnonzero((edges.ids < 0).any(axis=1))
+    if negative.size:
+        e = negative[0]
+        raise G2oFormatError(
+            f"{edges.tags[e]} names vertex id {edges.ids[e].min()}; vertex ids must be non-negative integers",
+            path,
+            int(edges.numbers[e]),
+        )
+    ids = np.unique(edges.ids)
+    n = len(ids)
+    vertices = _Poses(
+        ids=ids,
+        rotations=np.broadcast_to(np.eye(3), (n, 3, 3)),
+        translations=np.zeros((n, 3)),
+        numbers=np.zeros(n, dtype=np.int64),  # no line: duplicates are impossible
+    )
+    note = (
+        f"{path}: the file has no vertex lines, so the initial values are missing: created the {n} vertices "
+        "its edges name at the identity pose; start from an initialiser (--init chordal, the default, or "
+        "--init odometry; posegraph.init.initialize), not from the file (--init file)"
+    )
+    return vertices, note
+
+
+def _matrices(rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(translations), 4, 4))
+    out[:, :3, :3] = rotations
+    out[:, :3, 3] = translations
+    out[:, 3, 3] = 1.0
+    return out
