@@ -6,7 +6,8 @@
 Times ``se3.exp``, ``se3.log``, ``se3.right_jacobian_inverse`` (and the SO(3) counterparts) on
 ``--n`` random tangents/poses (angles uniform in [0, π), translations ~ N(0, 3²)) in one batched
 call each, against a Python loop calling ``gtsam.Pose3.Expmap`` / ``Logmap`` / ``LogmapDerivative``
-(``Rot3`` likewise) on prebuilt inputs.  The gtsam loop runs over the first ``--gtsam-n`` inputs and
+(``Rot3`` likewise) on prebuilt inputs, and ``se2.exp``, ``se2.log``, ``se2.right_jacobian_inverse``
+against ``Pose2`` (angles uniform in (−π, π)).  The gtsam loop runs over the first ``--gtsam-n`` inputs and
 its time is scaled linearly to ``--n`` (a loop's cost is linear in its length; the table says when
 it was scaled).  Both sides alternate over ``--repeat`` rounds so a slow spell of a shared machine
 hits both; the table gives the best round of each (process CPU time) and the ratio.  Also times the Lie part of one
@@ -26,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from posegraph.lie import se3, so3  # noqa: E402
+from posegraph.lie import se2, se3, so3  # noqa: E402
 
 
 def _best(fn, rounds: list[float]) -> None:
@@ -43,6 +44,27 @@ def _inputs(n: int, seed: int = 0):
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     w = axes * rng.uniform(0.0, np.pi, size=(n, 1))
     return np.concatenate([w, 3.0 * rng.normal(size=(n, 3))], axis=1)
+
+
+def _se2_cases(n: int, gtsam_n: int) -> list[tuple]:
+    """``se2`` against ``Pose2``: angles uniform in (−π, π), translations ~ N(0, 3²)."""
+    import gtsam
+
+    rng = np.random.default_rng(4)
+    xi = np.c_[3.0 * rng.normal(size=(n, 2)), rng.uniform(-np.pi, np.pi, n)]
+    T = se2.exp(xi)
+    sub = xi[:gtsam_n]
+    poses = [gtsam.Pose2(*x) for x in se2.to_xytheta(T[:gtsam_n])]
+    return [
+        ("se2.exp", lambda: se2.exp(xi), lambda: [gtsam.Pose2.Expmap(x) for x in sub], "Pose2.Expmap"),
+        ("se2.log", lambda: se2.log(T), lambda: [gtsam.Pose2.Logmap(p) for p in poses], "Pose2.Logmap"),
+        (
+            "se2.right_jacobian_inverse",
+            lambda: se2.right_jacobian_inverse(xi),
+            lambda: [gtsam.Pose2.LogmapDerivative(x) for x in sub],
+            "Pose2.LogmapDerivative",
+        ),
+    ]
 
 
 def run(n: int, gtsam_n: int, repeat: int) -> list[dict]:
@@ -72,7 +94,7 @@ def run(n: int, gtsam_n: int, repeat: int) -> list[dict]:
             lambda: [gtsam.Rot3.LogmapDerivative(x[:3]) for x in sub],
             "Rot3.LogmapDerivative",
         ),
-    ]
+    ] + _se2_cases(n, gtsam_n)
     rows = []
     for name, ours, theirs, gtsam_name in cases:
         ours()  # warm-up (imports, first allocations)

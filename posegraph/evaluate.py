@@ -6,7 +6,8 @@ the evaluation of RGB-D SLAM systems" (IROS 2012):
 
 * **ATE** — the estimated positions ``p_k`` are first aligned to the reference positions ``g_k``
   by the rigid transform ``(R, t)`` minimising ``Σ_k ‖R p_k + t − g_k‖²`` (Umeyama 1991 /
-  Horn 1987, rotation and translation, no scale). The error of pose ``k`` is
+  Horn 1987, rotation and translation, no scale; in 2D the planar closed form, see
+  :func:`align_rigid`). The error of pose ``k`` is
   ``‖R p_k + t − g_k‖`` (``ate_translation``, in the file's length unit) and the angle of
   ``G_kᵀ · R · P_k`` (``ate_rotation``, degrees), where ``P_k``, ``G_k`` are the rotations.
 * **RPE** — for consecutive poses ``k, k+1`` (in id order) the relative motions
@@ -20,6 +21,11 @@ max, sse; ``std`` is the population standard deviation, as ``numpy.std``).
 
 Poses are matched by vertex id: only ids present in both graphs are compared.
 
+Dimensions: poses are SE(3) ``(n, 4, 4)`` or SE(2) ``(n, 3, 3)`` matrices and every function works
+on either through the same code (``d = 3`` or ``2`` below).  A 2D trajectory gives the same figures
+as its embedding at ``z = 0`` (:func:`posegraph.lie.se2.to_se3`); :func:`evaluate` embeds a 2D
+trajectory when the other one is 3D.
+
 Files: :func:`read_trajectory` reads a g2o file's vertices; a file with edges only, such as gtsam's
 ``sphere2500_groundtruth.txt`` (``EDGE3`` lines, no vertices), gives the poses obtained by chaining
 its odometry edges ``i → i+1`` from the identity at the smallest id (read with gtsam).
@@ -32,6 +38,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from posegraph.errors import InputError
+from posegraph.lie import se2, so2
 
 __all__ = [
     "ErrorStats",
@@ -85,13 +92,15 @@ def error_stats(errors: np.ndarray) -> ErrorStats:
 
 
 def rotation_angle(rotations: np.ndarray) -> np.ndarray:
-    """Rotation angle θ ∈ [0, π] of rotation matrices ``(..., 3, 3)``, in radians.
+    """Rotation angle θ ∈ [0, π] of rotation matrices ``(..., 3, 3)`` or ``(..., 2, 2)``, in radians.
 
-    ``θ = atan2(‖vee(R − Rᵀ)‖ / 2, (tr R − 1) / 2)``: sin θ and cos θ are both read off R, so
-    the angle is accurate near 0 (where ``arccos`` of the trace loses half the digits) and
-    near π (where ``arcsin`` would).
+    3D: ``θ = atan2(‖vee(R − Rᵀ)‖ / 2, (tr R − 1) / 2)``; 2D: ``θ = |atan2(R₁₀ − R₀₁, R₀₀ + R₁₁)|``.
+    sin θ and cos θ are both read off R, so the angle is accurate near 0 (where ``arccos`` of the
+    trace loses half the digits) and near π (where ``arcsin`` would).
     """
     R = np.asarray(rotations, dtype=np.float64)
+    if R.shape[-1] == 2:
+        return np.abs(so2.to_angle(R))
     skew = np.stack(
         [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
         axis=-1,
@@ -104,17 +113,28 @@ def rotation_angle(rotations: np.ndarray) -> np.ndarray:
 def align_rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform ``(R, t)`` minimising ``Σ_k ‖R·source_k + t − target_k‖²`` (no scale).
 
-    ``source``, ``target``: ``(k, 3)`` points, ``k ≥ 3`` for a unique answer. Umeyama (1991),
-    "Least-squares estimation of transformation parameters between two point patterns",
-    with the scale fixed to 1: with centred points ``s̃, g̃`` and ``Σ = Σ_k g̃_k s̃_kᵀ = U S Vᵀ``,
-    ``R = U diag(1, 1, det(U)·det(V)) Vᵀ`` (the sign keeps R a rotation, never a reflection)
-    and ``t = ḡ − R s̄``. Returns ``R`` ``(3, 3)`` and ``t`` ``(3,)``.
+    ``source``, ``target``: ``(k, d)`` points, ``d = 3`` or ``2``. With centred points ``s̃, g̃``
+    and ``Σ = Σ_k g̃_k s̃_kᵀ``, ``t = ḡ − R s̄`` and
+
+    * 3D (``k ≥ 3`` for a unique answer): Umeyama (1991), "Least-squares estimation of
+      transformation parameters between two point patterns", with the scale fixed to 1:
+      ``Σ = U S Vᵀ``, ``R = U diag(1, 1, det(U)·det(V)) Vᵀ`` (the sign keeps R a rotation, never
+      a reflection).
+    * 2D (``k ≥ 2``): the planar rotation ``R(φ)`` maximising ``tr(R Σᵀ)``, in closed form
+      ``φ = atan2(Σ₁₀ − Σ₀₁, Σ₀₀ + Σ₁₁)`` (Horn's 2D case; gtsam's ``Pose2.Align``): no SVD, and
+      no reliance on the determinant fix to pin the free third axis of the rank-2 ``Σ`` that
+      planar points embedded in 3D give Umeyama (tests check both agree on such points).
+
+    Returns ``R`` ``(d, d)`` and ``t`` ``(d,)``.
     """
     source = np.asarray(source, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
     source_mean = source.mean(axis=0)
     target_mean = target.mean(axis=0)
     cross = (target - target_mean).T @ (source - source_mean)
+    if cross.shape == (2, 2):
+        R = so2.project(cross)
+        return R, target_mean - R @ source_mean
     U, _, Vt = np.linalg.svd(cross)
     d = np.ones(3)
     d[2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
@@ -143,49 +163,54 @@ def absolute_trajectory_error(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pose ATE after a rigid alignment of ``estimate`` onto ``reference``.
 
-    ``estimate``, ``reference``: matched poses ``(k, 4, 4)``. Returns ``(translation_errors (k,),
-    rotation_errors_deg (k,), alignment (4, 4))`` where ``alignment`` is the SE(3) matrix
-    ``[R t; 0 1]`` applied to the estimate (identity when ``align`` is False).
+    ``estimate``, ``reference``: matched poses ``(k, d+1, d+1)``. Returns ``(translation_errors
+    (k,), rotation_errors_deg (k,), alignment (d+1, d+1))`` where ``alignment`` is the SE(d)
+    matrix ``[R t; 0 1]`` applied to the estimate (identity when ``align`` is False).
     """
     estimate = np.asarray(estimate, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)
-    alignment = np.eye(4)
+    d = estimate.shape[-1] - 1
+    alignment = np.eye(d + 1)
     if align:
-        R, t = align_rigid(estimate[:, :3, 3], reference[:, :3, 3])
-        alignment[:3, :3] = R
-        alignment[:3, 3] = t
+        R, t = align_rigid(estimate[:, :d, d], reference[:, :d, d])
+        alignment[:d, :d] = R
+        alignment[:d, d] = t
     aligned = alignment @ estimate
-    translation = np.linalg.norm(aligned[:, :3, 3] - reference[:, :3, 3], axis=-1)
+    translation = np.linalg.norm(aligned[:, :d, d] - reference[:, :d, d], axis=-1)
     rotation = np.degrees(
-        rotation_angle(np.swapaxes(reference[:, :3, :3], -1, -2) @ aligned[:, :3, :3])
+        rotation_angle(np.swapaxes(reference[:, :d, :d], -1, -2) @ aligned[:, :d, :d])
     )
     return translation, rotation, alignment
 
 
-def _relative(poses: np.ndarray) -> np.ndarray:
-    """``X_k⁻¹ X_{k+1}`` for consecutive poses ``(k, 4, 4)`` → ``(k−1, 4, 4)``."""
-    R = poses[:-1, :3, :3]
-    Rt = np.swapaxes(R, -1, -2)
-    out = np.zeros((len(poses) - 1, 4, 4))
-    out[:, :3, :3] = Rt @ poses[1:, :3, :3]
-    out[:, :3, 3] = np.einsum("kij,kj->ki", Rt, poses[1:, :3, 3] - poses[:-1, :3, 3])
-    out[:, 3, 3] = 1.0
+def _inverse(poses: np.ndarray) -> np.ndarray:
+    """``[[Rᵀ, −Rᵀ t], [0, 1]]`` for poses ``(k, d+1, d+1)``."""
+    d = poses.shape[-1] - 1
+    Rt = np.swapaxes(poses[:, :d, :d], -1, -2)
+    out = np.zeros_like(poses)
+    out[:, :d, :d] = Rt
+    out[:, :d, d] = -np.einsum("kij,kj->ki", Rt, poses[:, :d, d])
+    out[:, d, d] = 1.0
     return out
+
+
+def _relative(poses: np.ndarray) -> np.ndarray:
+    """``X_k⁻¹ X_{k+1}`` for consecutive poses ``(k, d+1, d+1)`` → ``(k−1, d+1, d+1)``."""
+    return _inverse(poses[:-1]) @ poses[1:]
 
 
 def relative_pose_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-step RPE between consecutive matched poses (delta = 1 pose).
 
-    ``estimate``, ``reference``: ``(k, 4, 4)`` in the order to walk (id order). Returns
+    ``estimate``, ``reference``: ``(k, d+1, d+1)`` in the order to walk (id order). Returns
     ``(translation_errors (k−1,), rotation_errors_deg (k−1,))`` of ``E = B⁻¹ A`` with
     ``A = X_k⁻¹ X_{k+1}``, ``B = Y_k⁻¹ Y_{k+1}``.
     """
     A = _relative(np.asarray(estimate, dtype=np.float64))
     B = _relative(np.asarray(reference, dtype=np.float64))
-    Bt = np.swapaxes(B[:, :3, :3], -1, -2)
-    E_rotation = Bt @ A[:, :3, :3]
-    E_translation = np.einsum("kij,kj->ki", Bt, A[:, :3, 3] - B[:, :3, 3])
-    return np.linalg.norm(E_translation, axis=-1), np.degrees(rotation_angle(E_rotation))
+    E = _inverse(B) @ A
+    d = E.shape[-1] - 1
+    return np.linalg.norm(E[:, :d, d], axis=-1), np.degrees(rotation_angle(E[:, :d, :d]))
 
 
 @dataclass(frozen=True)
@@ -201,7 +226,8 @@ class TrajectoryErrors:
     rpe_translation: ErrorStats
     rpe_rotation: ErrorStats
     alignment: np.ndarray
-    """``(4, 4)`` SE(3) transform applied to the estimate before computing ATE."""
+    """``(4, 4)`` SE(3) or, for two 2D trajectories, ``(3, 3)`` SE(2) transform applied to the
+    estimate before computing ATE."""
 
     def as_dict(self) -> dict:
         return {
@@ -227,8 +253,9 @@ def evaluate(
 ) -> TrajectoryErrors:
     """ATE and RPE of an estimated trajectory against a reference, matched by vertex id.
 
-    ``*_ids`` ``(n,)`` and ``*_poses`` ``(n, 4, 4)``; poses are compared in increasing id order.
-    Raises :class:`~posegraph.errors.InputError` (naming ``source``) when fewer than 3 ids are
+    ``*_ids`` ``(n,)`` and ``*_poses`` ``(n, 4, 4)`` or ``(n, 3, 3)``; poses are compared in
+    increasing id order. When one trajectory is 2D and the other 3D, the 2D one is embedded at
+    ``z = 0`` (:func:`posegraph.lie.se2.to_se3`). Raises :class:`~posegraph.errors.InputError` (naming ``source``) when fewer than 3 ids are
     shared, since the alignment is then not unique.
     """
     ids, ei, ri = match_by_id(estimate_ids, reference_ids)
@@ -240,6 +267,8 @@ def evaluate(
         )
     estimate = np.asarray(estimate_poses, dtype=np.float64)[ei]
     reference = np.asarray(reference_poses, dtype=np.float64)[ri]
+    if estimate.shape[-1] != reference.shape[-1]:
+        estimate, reference = (se2.to_se3(X) if X.shape[-1] == 3 else X for X in (estimate, reference))
     ate_t, ate_r, alignment = absolute_trajectory_error(estimate, reference, align=align)
     rpe_t, rpe_r = relative_pose_error(estimate, reference)
     return TrajectoryErrors(
@@ -259,7 +288,7 @@ def chain_odometry(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Poses from the odometry edges (``|i − j| = 1``) of an edge list, starting at the identity.
 
-    ``ids_from``, ``ids_to`` ``(m,)`` vertex ids and ``measurements`` ``(m, 4, 4)`` with
+    ``ids_from``, ``ids_to`` ``(m,)`` vertex ids and ``measurements`` ``(m, d+1, d+1)`` with
     ``Z ≈ X_i⁻¹ X_j``. Returns ``(ids, poses)`` for the ids ``min .. max``: ``X_min = I`` and
     ``X_{k+1} = X_k Z_{k,k+1}`` (an edge ``k+1 → k`` is used inverted). Raises
     :class:`~posegraph.errors.InputError` when an id of that range has no odometry edge to its
@@ -271,24 +300,19 @@ def chain_odometry(
     first = int(min(ids_from.min(), ids_to.min()))
     last = int(max(ids_from.max(), ids_to.max()))
     n = last - first + 1
-    steps = np.full((n - 1, 4, 4), np.nan)
+    size = Z.shape[-1]
+    steps = np.full((n - 1, size, size), np.nan)
     forward = ids_to == ids_from + 1
     steps[ids_from[forward] - first] = Z[forward]
     backward = (ids_from == ids_to + 1) & ~np.isin(ids_to - first, ids_from[forward] - first)
     if np.any(backward):
-        Zb = Z[backward]
-        inverse = np.zeros_like(Zb)
-        Rt = np.swapaxes(Zb[:, :3, :3], -1, -2)
-        inverse[:, :3, :3] = Rt
-        inverse[:, :3, 3] = -np.einsum("kij,kj->ki", Rt, Zb[:, :3, 3])
-        inverse[:, 3, 3] = 1.0
-        steps[ids_to[backward] - first] = inverse
+        steps[ids_to[backward] - first] = _inverse(Z[backward])
     missing = np.flatnonzero(np.isnan(steps[:, 0, 0]))
     if missing.size:
         k = first + int(missing[0])
         raise InputError(f"no odometry edge from vertex {k} to {k + 1}: cannot chain the trajectory", path=source)
-    poses = np.empty((n, 4, 4))
-    poses[0] = np.eye(4)
+    poses = np.empty((n, size, size))
+    poses[0] = np.eye(size)
     for k in range(n - 1):  # a sequential product: each pose depends on the previous one
         poses[k + 1] = poses[k] @ steps[k]
     return np.arange(first, last + 1, dtype=np.int64), poses
@@ -307,7 +331,7 @@ def _is_gtsam_edge_file(path: str) -> bool:
 
 
 def read_trajectory(path, *, repair_information: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex ids ``(n,)`` and poses ``(n, 4, 4)`` of a trajectory file.
+    """Vertex ids ``(n,)`` and poses ``(n, 4, 4)`` — ``(n, 3, 3)`` for a 2D graph — of a trajectory file.
 
     A g2o file is read with :func:`posegraph.io.g2o.read_g2o` (vertices alone are enough). A file
     without any ``VERTEX`` line that the g2o reader refuses — gtsam's own format with ``EDGE3 i j x y z roll pitch yaw`` lines,

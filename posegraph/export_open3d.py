@@ -14,6 +14,12 @@ Mapping to ``open3d.pipelines.registration.PoseGraph``
   ``T = Z``, ``information = Ω`` unchanged: the same residual in the same order.
 * ``uncertain`` is False for odometry edges (``|id_i − id_j| = 1``) and True for loop closures, as
   Open3D's multiway-registration tutorial marks them (its line process may then prune them).
+
+2D graphs (SE(2) poses ``(n, 3, 3)``, information ``(m, 3, 3)`` in ``[v_x, v_y, ω]`` order) are
+embedded at ``z = 0`` (:func:`posegraph.lie.se2.to_se3`): ``v_x, v_y, ω`` become Open3D's ``x, y``
+and rotation about ``z``, and the three out-of-plane directions (rotation about x and y,
+translation along z) get the largest diagonal entry of the edge's in-plane information, so that
+Open3D's optimiser keeps a planar graph planar (a zero there would leave its system singular).
 """
 
 from __future__ import annotations
@@ -23,9 +29,11 @@ import os
 import numpy as np
 
 from posegraph.atomic import atomic_path
+from posegraph.lie import se2
 
 __all__ = [
     "require_open3d",
+    "embed_information_2d",
     "to_open3d_pose_graph",
     "write_open3d_pose_graph",
     "trajectory_line_set",
@@ -49,22 +57,44 @@ def require_open3d():
     return open3d
 
 
+# Open3D index ([rotation; translation]) of each se(2) tangent component [v_x, v_y, ω].
+_OPEN3D_INDEX_OF_SE2 = np.array([3, 4, 2])
+_OUT_OF_PLANE = np.array([0, 1, 5])
+
+
+def embed_information_2d(information: np.ndarray) -> np.ndarray:
+    """Open3D ``(m, 6, 6)`` information from SE(2) information ``(m, 3, 3)`` (module docstring)."""
+    information = np.asarray(information, dtype=np.float64)
+    out = np.zeros(information.shape[:-2] + (6, 6))
+    index = _OPEN3D_INDEX_OF_SE2
+    out[..., index[:, None], index] = information
+    stiffest = np.diagonal(information, axis1=-2, axis2=-1).max(axis=-1)
+    out[..., _OUT_OF_PLANE, _OUT_OF_PLANE] = stiffest[..., None]
+    return out
+
+
+def _in_3d(graph, poses):
+    """``(poses, measurements, information)`` as SE(3) arrays, 2D graphs embedded at z = 0."""
+    X = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    if X.shape[-1] == 4:
+        return X, graph.measurements, graph.information
+    return se2.to_se3(X), se2.to_se3(graph.measurements), embed_information_2d(graph.information)
+
+
 def to_open3d_pose_graph(graph, poses: np.ndarray | None = None):
     """An ``open3d.pipelines.registration.PoseGraph`` with the graph's vertices and edges.
 
-    ``poses`` ``(n, 4, 4)`` replaces ``graph.poses`` when given. See the module docstring for how
-    edges map.
+    ``poses`` ``(n, 4, 4)`` (or ``(n, 3, 3)`` for a 2D graph) replaces ``graph.poses`` when
+    given. See the module docstring for how edges map and how 2D graphs are embedded.
     """
     o3d = require_open3d()
     reg = o3d.pipelines.registration
-    X = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    X, measurements, information = _in_3d(graph, poses)
     pose_graph = reg.PoseGraph()
     for pose in X:
         pose_graph.nodes.append(reg.PoseGraphNode(np.ascontiguousarray(pose)))
     loop_closure = ~graph.odometry_mask()
-    for i, j, Z, info, uncertain in zip(
-        graph.edge_from, graph.edge_to, graph.measurements, graph.information, loop_closure
-    ):
+    for i, j, Z, info, uncertain in zip(graph.edge_from, graph.edge_to, measurements, information, loop_closure):
         pose_graph.edges.append(
             reg.PoseGraphEdge(int(j), int(i), np.ascontiguousarray(Z), np.ascontiguousarray(info), bool(uncertain))
         )
@@ -85,10 +115,13 @@ def trajectory_line_set(graph, poses: np.ndarray | None = None, *, loop_closures
     """An ``open3d.geometry.LineSet``: vertex positions in id order joined by segments.
 
     Points are the vertex positions sorted by id; lines join consecutive points (the trajectory,
-    coloured blue). With ``loop_closures`` every loop-closure edge is added as a grey line.
+    coloured blue). With ``loop_closures`` every loop-closure edge is added as a grey line. 2D
+    positions are placed at ``z = 0``.
     """
     o3d = require_open3d()
     X = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    if X.shape[-1] == 3:
+        X = se2.to_se3(X)
     order = np.argsort(graph.ids, kind="stable")
     points = X[order, :3, 3]
     n = len(order)

@@ -1,4 +1,4 @@
-"""3D trajectory figures with matplotlib (``pip install "posegraph[plot]"``).
+"""Trajectory figures with matplotlib (``pip install "posegraph[plot]"``).
 
 Matplotlib is imported inside the functions, and only its object-oriented API and the Agg
 canvas are used (no ``pyplot``, no global backend switch), so the figures render on a machine
@@ -8,6 +8,10 @@ Each graph is drawn as its vertex positions joined in increasing id order (the t
 its loop-closure edges (``|id_i − id_j| ≠ 1``, see :meth:`PoseGraph.odometry_mask`) drawn as faint
 segments of the same colour. Several graphs are overlaid with a legend — e.g. the input and the
 optimised result.
+
+3D graphs (poses ``(n, 4, 4)``) are drawn on 3D axes; 2D graphs (``(n, 3, 3)``, SE(2)) as a top
+view of the x–y plane with equal scales. When 2D and 3D graphs are overlaid, the 2D ones are
+drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from posegraph.atomic import atomic_path
+from posegraph.lie import se2
 
 __all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories"]
 
@@ -47,17 +52,17 @@ def trajectory_figure(
     size_inches: tuple[float, float] = (8.0, 6.5),
     dpi: int = 120,
 ):
-    """A matplotlib ``Figure`` with one 3D axes showing every graph's trajectory.
+    """A matplotlib ``Figure`` with one axes showing every graph's trajectory.
 
     ``graphs``: :class:`~posegraph.graph.PoseGraph` objects; ``labels``: legend entries (default
-    the graphs' ``source`` or ``graph k``); ``poses``: per graph an ``(n, 4, 4)`` array to draw
-    instead of ``graph.poses`` (or None). Axes share one scale in x, y and z so that shapes are
-    not distorted.
+    the graphs' ``source`` or ``graph k``); ``poses``: per graph an ``(n, 4, 4)`` or ``(n, 3, 3)``
+    array to draw instead of ``graph.poses`` (or None). 3D axes when any graph is 3D, a top view
+    when all are 2D (module docstring). Axes share one scale in every direction so that shapes
+    are not distorted.
     """
     require_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     graphs = list(graphs)
     if labels is None:
@@ -66,40 +71,22 @@ def trajectory_figure(
         poses = [None] * len(graphs)
     if not (len(labels) == len(poses) == len(graphs)):
         raise ValueError("graphs, labels and poses must have the same length")
+    poses = [graph.poses if X is None else np.asarray(X, dtype=np.float64) for graph, X in zip(graphs, poses)]
+    planar = all(X.shape[-1] == 3 for X in poses)
+    if not planar:
+        poses = [se2.to_se3(X) if X.shape[-1] == 3 else X for X in poses]
 
     fig = Figure(figsize=size_inches, dpi=dpi)
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(projection="3d")
+    ax = fig.add_subplot() if planar else fig.add_subplot(projection="3d")
     lows, highs = [], []
     for k, (graph, label, X) in enumerate(zip(graphs, labels, poses)):
-        colour = _COLOURS[k % len(_COLOURS)]
-        X = graph.poses if X is None else np.asarray(X)
-        positions = X[:, :3, 3]
-        order = np.argsort(graph.ids, kind="stable")
-        path = positions[order]
-        ax.plot(path[:, 0], path[:, 1], path[:, 2], color=colour, linewidth=1.0, label=label)
-        if loop_closures:
-            closing = ~graph.odometry_mask()
-            if np.any(closing):
-                segments = np.stack(
-                    [positions[graph.edge_from[closing]], positions[graph.edge_to[closing]]], axis=1
-                )
-                ax.add_collection3d(
-                    Line3DCollection(segments, colors=colour, linewidths=0.5, alpha=LOOP_CLOSURE_ALPHA)
-                )
+        positions = X[:, :-1, -1]
+        _draw_graph(ax, graph, positions, _COLOURS[k % len(_COLOURS)], label, loop_closures)
         if len(positions):
             lows.append(positions.min(axis=0))
             highs.append(positions.max(axis=0))
-    if lows:
-        low, high = np.min(lows, axis=0), np.max(highs, axis=0)
-        centre, half = (low + high) / 2, max(float(np.max(high - low)) / 2, 1e-9)
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_zlim(centre[2] - half, centre[2] + half)
-        ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_zlabel("z")
+    _equal_scales(ax, lows, highs)
     if title:
         ax.set_title(title)
     if loop_closures:
@@ -113,6 +100,42 @@ def trajectory_figure(
         ax.legend(loc="upper left", fontsize="small")
     fig.tight_layout()
     return fig
+
+
+def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_closures: bool) -> None:
+    """The id-ordered path of ``positions (n, d)`` and, optionally, faint loop-closure segments."""
+    path = positions[np.argsort(graph.ids, kind="stable")]
+    ax.plot(*path.T, color=colour, linewidth=1.0, label=label)
+    closing = ~graph.odometry_mask() if loop_closures else np.zeros(graph.num_edges, dtype=bool)
+    if not np.any(closing):
+        return
+    segments = np.stack([positions[graph.edge_from[closing]], positions[graph.edge_to[closing]]], axis=1)
+    style = dict(colors=colour, linewidths=0.5, alpha=LOOP_CLOSURE_ALPHA)
+    if positions.shape[1] == 2:
+        from matplotlib.collections import LineCollection
+
+        ax.add_collection(LineCollection(segments, **style))
+    else:
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+        ax.add_collection3d(Line3DCollection(segments, **style))
+
+
+def _equal_scales(ax, lows: list, highs: list) -> None:
+    """One scale on every axis, centred on the data; axis labels x, y (and z on 3D axes)."""
+    d = 3 if hasattr(ax, "set_zlim") else 2
+    setters = (ax.set_xlim, ax.set_ylim, getattr(ax, "set_zlim", None))[:d]
+    if lows:
+        low, high = np.min(lows, axis=0), np.max(highs, axis=0)
+        centre, half = (low + high) / 2, max(float(np.max(high - low)) / 2, 1e-9)
+        for set_limits, c in zip(setters, centre):
+            set_limits(c - half, c + half)
+        if d == 3:
+            ax.set_box_aspect((1, 1, 1))
+        else:
+            ax.set_aspect("equal", adjustable="datalim")
+    for name, set_label in zip("xyz", (ax.set_xlabel, ax.set_ylabel, getattr(ax, "set_zlabel", None))[:d]):
+        set_label(name)
 
 
 def plot_trajectories(

@@ -8,6 +8,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from posegraph.errors import InputError
+from posegraph.lie import se2, so2
 from posegraph.evaluate import (
     absolute_trajectory_error,
     align_rigid,
@@ -183,3 +184,103 @@ def test_chain_odometry_rebuilds_a_trajectory_from_its_steps():
     np.testing.assert_allclose(chained, poses, atol=1e-12)
     with pytest.raises(InputError, match="from vertex 2 to 3"):
         chain_odometry(np.array([0, 1, 3]), np.array([1, 2, 4]), Z[:3])
+
+
+# --- 2D trajectories (SE(2), (n, 3, 3)) ------------------------------------------------------
+
+
+def random_planar_poses(rng, n, spread=5.0):
+    return se2.from_xytheta(np.c_[rng.normal(scale=spread, size=(n, 2)), rng.uniform(-np.pi, np.pi, n)])
+
+
+def noisy(rng, poses, scale=0.05):
+    """Each pose moved by a random right perturbation (translation and angle ~ N(0, scale²))."""
+    return se2.compose(poses, se2.exp(rng.normal(scale=scale, size=(len(poses), 3))))
+
+
+@pytest.mark.parametrize("theta", [0.0, 1e-12, 0.3, -2.0, np.pi - 1e-12, np.pi, -np.pi])
+def test_rotation_angle_of_2d_rotations(theta):
+    assert rotation_angle(so2.from_angle(theta)) == pytest.approx(abs(theta), rel=1e-15, abs=1e-16)
+
+
+def test_planar_alignment_recovers_a_known_transform_and_is_optimal():
+    rng = np.random.default_rng(11)
+    points = rng.normal(scale=4.0, size=(40, 2))
+    T = se2.from_xytheta([3.0, -7.0, 2.5])
+    R, t = align_rigid(points, se2.act(T, points))
+    assert R.shape == (2, 2) and t.shape == (2,)
+    np.testing.assert_allclose(R, T[:2, :2], atol=1e-14)
+    np.testing.assert_allclose(t, T[:2, 2], atol=1e-13)
+    # with noise: no (θ, t) does better (generic least squares from the true transform)
+    target = se2.act(T, points) + rng.normal(scale=0.3, size=points.shape)
+    R, t = align_rigid(points, target)
+    closed_form = np.sum((points @ R.T + t - target) ** 2)
+
+    def residual(x):
+        return (se2.act(se2.from_xytheta(x), points) - target).ravel()
+
+    numeric = least_squares(residual, se2.to_xytheta(T), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert closed_form <= np.sum(numeric.fun**2) * (1 + 1e-12)
+    np.testing.assert_allclose(R, so2.from_angle(numeric.x[2]), atol=1e-8)
+
+
+def test_planar_alignment_matches_gtsams_pose2_align():
+    gtsam = pytest.importorskip("gtsam")
+    rng = np.random.default_rng(12)
+    points = rng.normal(scale=4.0, size=(25, 2))
+    target = se2.act(se2.from_xytheta([1.0, 2.0, -1.0]), points) + rng.normal(scale=0.5, size=points.shape)
+    R, t = align_rigid(points, target)
+    reference = gtsam.Pose2.Align(target.T, points.T)  # a = Align(a, b) · b
+    np.testing.assert_allclose(R, reference.rotation().matrix(), atol=1e-13)
+    np.testing.assert_allclose(t, reference.translation(), atol=1e-12)
+
+
+def test_2d_trajectory_and_its_z0_embedding_give_the_same_figures():
+    rng = np.random.default_rng(13)
+    gt = random_planar_poses(rng, 40)
+    est = se2.compose(se2.from_xytheta([4.0, -1.0, 0.7]), noisy(rng, gt))  # moved and noisy
+    ids = np.arange(40)
+    flat = evaluate(ids, est, ids, gt)
+    embedded = evaluate(ids, se2.to_se3(est), ids, se2.to_se3(gt))
+    mixed = evaluate(ids, est, ids, se2.to_se3(gt))  # a 2D estimate against a 3D reference
+    assert flat.alignment.shape == (3, 3) and embedded.alignment.shape == (4, 4)
+    assert flat.ate_translation.rmse > 0.01 and flat.rpe_rotation.rmse > 0.5  # the noise shows
+    for other in (embedded, mixed):
+        for field in ("ate_translation", "ate_rotation", "rpe_translation", "rpe_rotation"):
+            a, b = getattr(flat, field), getattr(other, field)
+            np.testing.assert_allclose([a.rmse, a.max, a.median], [b.rmse, b.max, b.median], rtol=1e-9, err_msg=field)
+        np.testing.assert_allclose(other.alignment, se2.to_se3(flat.alignment), atol=1e-12)
+
+
+def test_2d_ground_truth_moved_rigidly_has_zero_errors_and_the_move_is_recovered():
+    rng = np.random.default_rng(14)
+    gt = random_planar_poses(rng, 25)
+    T = se2.from_xytheta([-3.0, 8.0, -2.9])
+    ids = np.arange(25) + 5
+    result = evaluate(ids, se2.compose(T, gt), ids, gt)
+    assert max(result.ate_translation.max, result.rpe_translation.max) < 1e-12
+    assert max(result.ate_rotation.max, result.rpe_rotation.max) < 1e-10
+    np.testing.assert_allclose(result.alignment, se2.inverse(T), atol=1e-12)
+
+
+def test_2d_rpe_and_ate_of_one_turned_pose():
+    rng = np.random.default_rng(15)
+    gt = random_planar_poses(rng, 8)
+    est = gt.copy()
+    est[3, :2, :2] = est[3, :2, :2] @ so2.from_angle(np.radians(-10.0))
+    t_err, r_err, alignment = absolute_trajectory_error(est, gt)
+    np.testing.assert_allclose(alignment, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(t_err, 0.0, atol=1e-12)
+    np.testing.assert_allclose(r_err, np.where(np.arange(8) == 3, 10.0, 0.0), atol=1e-9)
+    _, r_rel = relative_pose_error(est, gt)
+    np.testing.assert_allclose(r_rel, np.where(np.isin(np.arange(7), [2, 3]), 10.0, 0.0), atol=1e-9)
+
+
+def test_chain_odometry_of_2d_steps():
+    rng = np.random.default_rng(16)
+    poses = random_planar_poses(rng, 6)
+    poses = se2.between(poses[0], poses)  # start at the identity
+    ids_from, ids_to = np.array([0, 2, 1, 3, 5]), np.array([1, 3, 2, 4, 4])  # 5→4 written backwards
+    ids, chained = chain_odometry(ids_from, ids_to, se2.between(poses[ids_from], poses[ids_to]))
+    np.testing.assert_array_equal(ids, np.arange(6))
+    np.testing.assert_allclose(chained, poses, atol=1e-12)

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from posegraph.graph import PoseGraph
+from posegraph.lie import se2
 
 o3d = pytest.importorskip("open3d", reason="Open3D not installed (pip install open3d)")
 
@@ -88,3 +89,57 @@ def test_line_set_ply_reads_back(tmp_path, loop_closures):
     if loop_closures:
         expected += [(0, 6), (3, 9), (5, 11)]
     assert sorted(map(tuple, lines.tolist())) == sorted(expected)
+
+
+def consistent_planar_graph(n=12, seed=0):
+    """Random SE(2) poses, vertex 0 at the identity, exact measurements, coupled information."""
+    rng = np.random.default_rng(seed)
+    poses = se2.from_xytheta(np.c_[rng.normal(scale=3.0, size=(n, 2)), rng.uniform(-np.pi, np.pi, n)])
+    poses[0] = np.eye(3)
+    edge_from = np.r_[np.arange(n - 1), [0, 3, 5]]
+    edge_to = np.r_[np.arange(1, n), [6, 9, 11]]
+    information = np.tile(np.diag([400.0, 300.0, 100.0]), (len(edge_from), 1, 1))
+    information[:, 0, 2] = information[:, 2, 0] = 5.0  # v_x–ω coupling, to see the order kept
+    Z = se2.between(poses[edge_from], poses[edge_to])
+    return PoseGraph(np.arange(n) + 3, poses, edge_from, edge_to, Z, information), rng
+
+
+def test_2d_graph_is_embedded_at_z0(tmp_path):
+    graph, _ = consistent_planar_graph()
+    path = tmp_path / "planar.json"
+    write_open3d_pose_graph(path, graph)
+    back = o3d.io.read_pose_graph(str(path))
+    np.testing.assert_allclose(np.array([node.pose for node in back.nodes]), se2.to_se3(graph.poses), atol=1e-12)
+    edge = back.edges[0]
+    np.testing.assert_allclose(edge.transformation, se2.to_se3(graph.measurements[0]), atol=1e-12)
+    info = np.asarray(edge.information)
+    # Open3D order [ωx, ωy, ωz, x, y, z]: v_x → x, v_y → y, ω → ωz; out-of-plane held at the stiffest
+    np.testing.assert_array_equal(np.diag(info), [400.0, 400.0, 100.0, 400.0, 300.0, 400.0])
+    assert info[3, 2] == info[2, 3] == 5.0
+    assert np.count_nonzero(info - np.diag(np.diag(info))) == 2
+
+
+def test_open3d_optimiser_recovers_a_consistent_2d_graph():
+    graph, rng = consistent_planar_graph(seed=1)
+    noisy = se2.compose(graph.poses, se2.exp(rng.normal(scale=0.03, size=(graph.num_vertices, 3))))
+    noisy[0] = np.eye(3)
+    pose_graph = to_open3d_pose_graph(graph, noisy)
+    reg = o3d.pipelines.registration
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        reg.global_optimization(
+            pose_graph,
+            reg.GlobalOptimizationLevenbergMarquardt(),
+            reg.GlobalOptimizationConvergenceCriteria(),
+            reg.GlobalOptimizationOption(max_correspondence_distance=0.1, edge_prune_threshold=0.25, reference_node=0),
+        )
+    optimised = np.array([node.pose for node in pose_graph.nodes])
+    assert np.abs(noisy - graph.poses).max() > 0.03
+    np.testing.assert_allclose(optimised, se2.to_se3(graph.poses), atol=1e-5)  # back, and still planar
+
+
+def test_2d_line_set_points_lie_at_z0(tmp_path):
+    graph, _ = consistent_planar_graph()
+    path = tmp_path / "planar.ply"
+    write_trajectory_ply(path, graph, loop_closures=True)
+    points = np.asarray(o3d.io.read_line_set(str(path)).points)
+    np.testing.assert_allclose(points, np.c_[graph.poses[:, :2, 2], np.zeros(graph.num_vertices)], atol=1e-12)

@@ -7,11 +7,13 @@ import pytest
 
 pytest.importorskip("matplotlib", reason="plotting needs matplotlib (pip install 'posegraph[plot]')")
 
+from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import to_rgb  # noqa: E402
 from matplotlib.image import imread  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
 from posegraph.graph import PoseGraph  # noqa: E402
+from posegraph.lie import se2  # noqa: E402
 from posegraph.plot import LOOP_CLOSURE_ALPHA, plot_trajectories, trajectory_figure  # noqa: E402
 
 
@@ -74,3 +76,46 @@ def test_failed_save_leaves_nothing(tmp_path):
 def test_mismatched_labels_are_refused():
     with pytest.raises(ValueError, match="same length"):
         trajectory_figure([helix_graph()], ["a", "b"])
+
+
+def planar_graph(n=40, shuffle_seed=None):
+    """The helix's top view as an SE(2) graph: (n, 3, 3) poses, the same ids and edges."""
+    helix = helix_graph(n, shuffle_seed=shuffle_seed)
+    heading = np.arctan2(helix.poses[:, 1, 3], helix.poses[:, 0, 3])
+    poses = se2.from_xytheta(np.c_[helix.poses[:, :2, 3], heading])
+    m = helix.num_edges
+    return PoseGraph(helix.ids, poses, helix.edge_from, helix.edge_to, np.tile(np.eye(3), (m, 1, 1)), np.tile(np.eye(3), (m, 1, 1)))
+
+
+def test_2d_graphs_get_a_top_view_with_equal_scales():
+    graph = planar_graph(shuffle_seed=4)
+    fig = trajectory_figure([graph], ["planar"])
+    (ax,) = fig.axes
+    assert ax.name == "rectilinear" and ax.get_aspect() == 1.0
+    (line,) = [l for l in ax.get_lines() if l.get_label() == "planar"]
+    order = np.argsort(graph.ids)
+    np.testing.assert_allclose(np.c_[line.get_xdata(), line.get_ydata()], graph.poses[order, :2, 2])
+    (closures,) = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert closures.get_alpha() == LOOP_CLOSURE_ALPHA
+    segments = closures.get_segments()
+    closing = ~graph.odometry_mask()
+    assert len(segments) == np.count_nonzero(closing) == 3
+    np.testing.assert_allclose(segments[0], graph.poses[[graph.edge_from[closing][0], graph.edge_to[closing][0]], :2, 2])
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x", "y")
+
+
+def test_2d_overlaid_on_3d_is_drawn_at_z0():
+    fig = trajectory_figure([helix_graph(), planar_graph()], ["3d", "2d"])
+    (ax,) = fig.axes
+    assert ax.name == "3d"
+    (flat,) = [l for l in ax.get_lines() if l.get_label() == "2d"]
+    x, y, z = flat.get_data_3d()
+    np.testing.assert_array_equal(z, 0.0)
+    np.testing.assert_allclose(np.c_[x, y], helix_graph().poses[:, :2, 3])
+
+
+def test_2d_png_shows_the_trajectory(tmp_path):
+    path = tmp_path / "top.png"
+    plot_trajectories(path, [planar_graph()], size_inches=(5, 5), dpi=100)
+    rgb = imread(path)[..., :3].reshape(-1, 3)
+    assert np.count_nonzero(np.all(np.abs(rgb - to_rgb("#0072B2")) < 0.08, axis=1)) > 200

@@ -1,4 +1,4 @@
-"""SO(3) and SE(3) as plain functions over batched numpy arrays: :mod:`so3`, :mod:`se3`."""
-from posegraph.lie import se3, so3
+"""SO(2), SE(2), SO(3) and SE(3) as plain functions over batched numpy arrays: :mod:`so2`, :mod:`se2`, :mod:`so3`, :mod:`se3`."""
+from posegraph.lie import se2, se3, so2, so3
 
-__all__ = ["so3", "se3"]
+__all__ = ["so2", "se2", "so3", "se3"]

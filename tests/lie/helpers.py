@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
 
-from posegraph.lie import se3
+from posegraph.lie import se2, se3
 
 # The rotation angles every identity is checked at (issue 2), besides random inputs.
 EDGE_ANGLES = (0.0, 1e-12, 1e-8, 1e-4, 1.0, np.pi - 1e-6, np.pi)
@@ -45,3 +48,51 @@ def central_difference(f, x0: np.ndarray, step: float = 1e-6) -> np.ndarray:
     plus = f(x0[..., None, :] + offsets)  # (..., k, m): row j is f(x0 + h e_j)
     minus = f(x0[..., None, :] - offsets)
     return np.swapaxes(plus - minus, -1, -2) / (2.0 * step)
+
+
+# --- SE(2) inputs and the groups the shared tests run over -----------------------------------
+
+
+def se2_tangents(rng, shape, max_angle=np.pi, translation_scale=2.0) -> np.ndarray:
+    """se(2) tangents [v_x, v_y, ω]: ω uniform in [−max_angle, max_angle], v ~ N(0, scale²)."""
+    w = rng.uniform(-max_angle, max_angle, size=shape + (1,))
+    return np.concatenate([translation_scale * rng.normal(size=shape + (2,)), w], axis=-1)
+
+
+def se2_tangents_at_angle(rng, angle: float, n: int = 16) -> np.ndarray:
+    """``n`` tangents with |ω| = angle (random signs, random v)."""
+    sign = np.where(rng.uniform(size=(n, 1)) < 0.5, -1.0, 1.0)
+    sign[0] = 1.0  # +angle and −angle both present whenever n ≥ 2
+    sign[-1] = -1.0
+    return np.concatenate([rng.normal(size=(n, 2)), angle * sign], axis=-1)
+
+
+@dataclass(frozen=True)
+class GroupCase:
+    """One group the shared tests run over: its module, sizes and random inputs."""
+
+    name: str
+    module: object
+    dim: int
+    """Tangent dimension."""
+    matrix_size: int
+    """Group elements are ``(..., matrix_size, matrix_size)``; points have ``matrix_size − 1`` components."""
+    random_tangents: Callable
+    """``(rng, shape, max_angle=π) -> (*shape, dim)``."""
+    tangents_at_angle: Callable
+    """``(rng, angle, n) -> (n, dim)`` with rotation angle ``angle``."""
+
+    @property
+    def point_dim(self) -> int:
+        return self.matrix_size - 1
+
+    def poses(self, rng, shape, max_angle=np.pi) -> np.ndarray:
+        return self.module.exp(self.random_tangents(rng, shape, max_angle))
+
+    def at_angle(self, angle, n=16, seed=0) -> np.ndarray:
+        return self.tangents_at_angle(np.random.default_rng(seed), angle, n)
+
+
+SE3_CASE = GroupCase("se3", se3, 6, 4, tangents, tangents_at_angle)
+SE2_CASE = GroupCase("se2", se2, 3, 3, se2_tangents, se2_tangents_at_angle)
+GROUP_CASES = (SE3_CASE, SE2_CASE)

@@ -1,4 +1,4 @@
-"""40-digit references for the SO(3)/SE(3) Jacobians, written independently of posegraph.lie.
+"""40-digit references for the SO(3)/SE(3)/SE(2) Jacobians, written independently of posegraph.lie.
 
 Straight from the textbook formulas with mpmath matrices: the SO(3) closed forms with
 ``1 − cos θ`` and ``sin θ`` as written (mpmath's 40 digits absorb the cancellation), and the SE(3)
@@ -97,3 +97,46 @@ def se3_right_jacobian_inverse(xi):
         w, v = _vec(xi[:3]), _vec(xi[3:])
         inv = _jr_inv(w)
         return _to_numpy(_blocks(inv, -inv * _q([-c for c in v], [-c for c in w]) * inv))
+
+
+def _se2_right_jacobian(xi):
+    """Solà (2018) eq. 163, ``Jr([ρ; θ])`` in [v_x, v_y, ω] order, written out as there (θ ≠ 0)."""
+    r1, r2, t = _vec(xi)
+    s, c = mp.sin(t), mp.cos(t)
+    return mp.matrix(
+        [
+            [s / t, (1 - c) / t, (t * r1 - r2 + r2 * c - r1 * s) / t**2],
+            [(c - 1) / t, s / t, (r1 + t * r2 - r1 * c - r2 * s) / t**2],
+            [0, 0, 1],
+        ]
+    )
+
+
+def se2_right_jacobian(xi):
+    """Solà's eq. 163 for ``Jr([v; ω])``."""
+    with mp.workdps(WORKING_DIGITS):
+        return _to_numpy(_se2_right_jacobian(xi))
+
+
+def se2_right_jacobian_inverse(xi):
+    """The inverse of Solà's eq. 163, by mpmath's LU at working precision."""
+    with mp.workdps(WORKING_DIGITS):
+        return _to_numpy(mp.inverse(_se2_right_jacobian(xi)))
+
+
+def se2_exp(xi):
+    """``[[R(ω), V v], [0, 1]]`` with ``V = (1/ω) [[sin ω, −(1 − cos ω)], [1 − cos ω, sin ω]]`` (Solà eq. 156)."""
+    with mp.workdps(WORKING_DIGITS):
+        v1, v2, t = _vec(xi)
+        s, c = mp.sin(t), mp.cos(t)
+        return _to_numpy(mp.matrix([[c, -s, (s * v1 - (1 - c) * v2) / t], [s, c, ((1 - c) * v1 + s * v2) / t], [0, 0, 1]]))
+
+
+def se2_log(T):
+    """``[V⁻¹ t; ω]`` with ``ω = atan2(R₁₀, R₀₀)``, inverting V by mpmath's LU (``T`` taken as exact)."""
+    with mp.workdps(WORKING_DIGITS):
+        t = mp.atan2(mp.mpf(float(T[1, 0])), mp.mpf(float(T[0, 0])))
+        s, c = mp.sin(t), mp.cos(t)
+        V = mp.matrix([[s / t, -(1 - c) / t], [(1 - c) / t, s / t]])
+        v = mp.lu_solve(V, mp.matrix([mp.mpf(float(T[0, 2])), mp.mpf(float(T[1, 2]))]))
+        return np.array([float(v[0]), float(v[1]), float(t)])
