@@ -12,8 +12,12 @@ Mapping to ``open3d.pipelines.registration.PoseGraph``
   translation]`` order with Ω. Our edge ``i → j`` states ``Z ≈ X_i⁻¹ X_j`` and scores
   ``Log(Z⁻¹ X_i⁻¹ X_j)`` in ``[ω; v]`` order, so it is exported as ``source = j``, ``target = i``,
   ``T = Z``, ``information = Ω`` unchanged: the same residual in the same order.
-* ``uncertain`` is False for odometry edges (``|id_i − id_j| = 1``) and True for loop closures, as
-  Open3D's multiway-registration tutorial marks them (its line process may then prune them).
+* ``uncertain`` is False for every edge by default: a g2o file has no notion of an uncertain
+  edge, and Open3D's line process prunes uncertain edges that disagree with the current poses —
+  on smallGrid3D it drops most loop closures and ends at a cost 170 times the optimum
+  (``docs/interop.md``). ``uncertain_loop_closures=True`` marks loop closures (not odometry,
+  :meth:`~posegraph.graph.PoseGraph.odometry_mask`) uncertain, as Open3D's multiway-registration
+  tutorial does for loop closures found by registration.
 
 2D graphs (SE(2) poses ``(n, 3, 3)``, information ``(m, 3, 3)`` in ``[v_x, v_y, ω]`` order) are
 embedded at ``z = 0`` (:func:`posegraph.lie.se2.to_se3`): ``v_x, v_y, ω`` become Open3D's ``x, y``
@@ -81,11 +85,12 @@ def _in_3d(graph, poses):
     return se2.to_se3(X), se2.to_se3(graph.measurements), embed_information_2d(graph.information)
 
 
-def to_open3d_pose_graph(graph, poses: np.ndarray | None = None):
+def to_open3d_pose_graph(graph, poses: np.ndarray | None = None, *, uncertain_loop_closures: bool = False):
     """An ``open3d.pipelines.registration.PoseGraph`` with the graph's vertices and edges.
 
     ``poses`` ``(n, 4, 4)`` (or ``(n, 3, 3)`` for a 2D graph) replaces ``graph.poses`` when
-    given. See the module docstring for how edges map and how 2D graphs are embedded.
+    given. Every edge is certain unless ``uncertain_loop_closures``. See the module docstring for
+    how edges map and how 2D graphs are embedded.
     """
     o3d = require_open3d()
     reg = o3d.pipelines.registration
@@ -93,18 +98,20 @@ def to_open3d_pose_graph(graph, poses: np.ndarray | None = None):
     pose_graph = reg.PoseGraph()
     for pose in X:
         pose_graph.nodes.append(reg.PoseGraphNode(np.ascontiguousarray(pose)))
-    loop_closure = ~graph.odometry_mask()
-    for i, j, Z, info, uncertain in zip(graph.edge_from, graph.edge_to, measurements, information, loop_closure):
+    uncertain_edges = ~graph.odometry_mask() if uncertain_loop_closures else np.zeros(graph.num_edges, bool)
+    for i, j, Z, info, uncertain in zip(graph.edge_from, graph.edge_to, measurements, information, uncertain_edges):
         pose_graph.edges.append(
             reg.PoseGraphEdge(int(j), int(i), np.ascontiguousarray(Z), np.ascontiguousarray(info), bool(uncertain))
         )
     return pose_graph
 
 
-def write_open3d_pose_graph(path, graph, poses: np.ndarray | None = None) -> None:
-    """Write the graph as an Open3D PoseGraph JSON file (``open3d.io.write_pose_graph``), atomically."""
+def write_open3d_pose_graph(
+    path, graph, poses: np.ndarray | None = None, *, uncertain_loop_closures: bool = False
+) -> None:
+    """Write :func:`to_open3d_pose_graph` as an Open3D PoseGraph JSON file (``open3d.io.write_pose_graph``), atomically."""
     o3d = require_open3d()
-    pose_graph = to_open3d_pose_graph(graph, poses)
+    pose_graph = to_open3d_pose_graph(graph, poses, uncertain_loop_closures=uncertain_loop_closures)
     with atomic_path(path, suffix=".json") as tmp:
         # Some Open3D versions return None rather than a success flag: check the file too.
         if o3d.io.write_pose_graph(tmp, pose_graph) is False or os.path.getsize(tmp) == 0:

@@ -2,33 +2,57 @@
 
 from __future__ import annotations
 
-from posegraph.cli.common import EXIT_OK, repair_option, warn
+from posegraph.cli.common import EXIT_OK, non_negative_float, repair_option, warn
 
 NAME = "eval"
 HELP = "trajectory errors (ATE, RPE) against a reference"
 DESCRIPTION = (
     "Absolute trajectory error after a least-squares SE(3) alignment (Umeyama/Horn, no scale) "
     "and relative pose error between consecutive ids, as rmse/mean/median/std/min/max in the way "
-    "evo reports them. Poses are matched by vertex id."
+    "evo reports them. Each file may be g2o (poses keyed by vertex id), TUM ('timestamp tx ty tz qx "
+    "qy qz qw', keyed by timestamp) or KITTI (3x4 matrix per line, keyed by line number), plain or "
+    "gzip/bzip2/xz-compressed, recognised by its content. Poses are matched by key: exactly for "
+    "integer keys (vertex ids, TUM files written by 'posegraph export --tum'), otherwise as evo "
+    "does, to the nearest timestamp within --max-time-diff."
 )
 EXAMPLES = """
   posegraph eval optimised.g2o ground-truth.g2o
-  posegraph eval optimised.g2o ground-truth.g2o --json > errors.json"""
+  posegraph eval optimised.g2o ground-truth.g2o --json > errors.json
+  posegraph eval optimised.g2o groundtruth_tum.txt"""
 
 
 def add_arguments(p) -> None:
-    p.add_argument("estimate", metavar="EST.g2o", help="estimated poses")
-    p.add_argument("reference", metavar="GT.g2o", help="reference (ground-truth) poses")
+    p.add_argument("estimate", metavar="EST", help="estimated poses (g2o, TUM or KITTI file)")
+    p.add_argument("reference", metavar="GT", help="reference (ground-truth) poses (g2o, TUM or KITTI file)")
     repair_option(p)
+    p.add_argument("--max-time-diff", metavar="SECONDS", type=non_negative_float, default=0.01,
+                   help="largest timestamp difference of two matched TUM poses (default 0.01, as evo's "
+                        "--t_max_diff); integer keys match exactly")
     p.add_argument("--no-align", action="store_true", help="compute ATE without aligning the trajectories")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def run(args) -> int:
-    from posegraph.evaluate import evaluate, read_trajectory
+def read_poses(path: str, repair_information: bool):
+    """``(keys (n,), poses)`` of a g2o, TUM or KITTI file: vertex ids, timestamps or line numbers."""
+    from posegraph.io import trajectory
 
-    estimate_ids, estimate_poses = read_trajectory(args.estimate, repair_information=args.repair_information)
-    reference_ids, reference_poses = read_trajectory(args.reference, repair_information=args.repair_information)
+    kind = trajectory.file_format(path)
+    if kind == "tum":
+        return trajectory.read_tum(path)
+    if kind == "kitti":
+        return trajectory.read_kitti(path)
+    from posegraph.evaluate import read_trajectory
+
+    return read_trajectory(path, repair_information=repair_information)
+
+
+def run(args) -> int:
+    from posegraph.evaluate import evaluate
+    from posegraph.io.trajectory import matching_keys
+
+    estimate_stamps, estimate_poses = read_poses(args.estimate, args.repair_information)
+    reference_stamps, reference_poses = read_poses(args.reference, args.repair_information)
+    estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
     result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
                       align=not args.no_align, source=args.estimate)
     if result.num_matched < max(result.num_estimate, result.num_reference):

@@ -25,6 +25,7 @@ from posegraph.io.g2o_checks import (
 )
 from posegraph.io.g2o_format import EDGE3_TAG, EDGE_TAG, FIX_TAG, READ_TAGS, RECORDS, VERTEX3_TAG, VERTEX_TAG
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
+from posegraph.io.text_input import read_text
 from posegraph.lie import so3
 
 
@@ -65,7 +66,8 @@ def read_g2o(
     path:
         The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
         lines, and gtsam's older ``VERTEX3`` / ``EDGE3``; see ``docs/g2o.md``
-        for the format and the checks).
+        for the format and the checks), plain or gzip/bzip2/xz-compressed
+        (:func:`posegraph.io.text_input.read_text`).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
         file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
@@ -98,7 +100,7 @@ def read_g2o(
         no vertices with ``require_edges=False``, a duplicate vertex id, an
         edge or ``FIX`` naming a missing vertex, or a self-loop.
     InputError
-        The file cannot be opened.
+        The file cannot be opened, or is not text.
 
     Warns
     -----
@@ -108,13 +110,7 @@ def read_g2o(
         several connected components (one warning each, after all checks pass).
     """
     name = os.fspath(path)
-    try:
-        with open(name, "rb") as handle:
-            data = handle.read()
-    except OSError as err:
-        raise InputError(f"cannot read the file: {err.strerror or err}", name) from err
-    # utf-8-sig drops a byte-order mark, which would otherwise glue itself to the first tag.
-    text = data.decode("utf-8-sig", errors="replace")
+    text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
     return _parse(
         text, name, source=os.path.abspath(name), require_edges=require_edges, repair_information=repair_information
     )
