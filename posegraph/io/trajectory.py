@@ -190,7 +190,7 @@ def parse_tum(text: str, path: str) -> tuple[np.ndarray, np.ndarray]:
     repeated = np.flatnonzero(np.diff(stamps) == 0)
     if repeated.size:
         first, second = sorted(numbers[order[repeated[0]: repeated[0] + 2]])
-        raise InputError(f"timestamp {stamps[repeated[0]]!r} repeats the one on line {first}", path, int(second))
+        raise InputError(f"timestamp {float(stamps[repeated[0]])!r} repeats the one on line {first}", path, int(second))
     poses = np.tile(np.eye(4), (len(values), 1, 1))
     poses[:, :3, :3] = so3.from_quaternion(q[order] / norm[order, None])
     poses[:, :3, 3] = values[order, 1:4]
@@ -278,7 +278,7 @@ def read_timestamp_table(path, ids: np.ndarray) -> np.ndarray:
     repeated = np.flatnonzero(np.diff(stamps[order]) == 0)
     if repeated.size:
         a, b = order[repeated[0]: repeated[0] + 2]
-        raise InputError(f"vertices {ids[a]} and {ids[b]} get the same timestamp {stamps[a]!r}", name,
+        raise InputError(f"vertices {ids[a]} and {ids[b]} get the same timestamp {float(stamps[a])!r}", name,
                          int(max(rows[a], rows[b])) if values.shape[1] == 2 else None)
     return stamps
 
@@ -288,7 +288,7 @@ def _stamps_by_id(values, numbers, ids, name) -> tuple[np.ndarray, np.ndarray]:
     table_ids = values[:, 0]
     integer = np.flatnonzero(table_ids != np.round(table_ids))
     if integer.size:
-        raise InputError(f"vertex id {table_ids[integer[0]]!r} is not an integer", name, int(numbers[integer[0]]))
+        raise InputError(f"vertex id {float(table_ids[integer[0]])!r} is not an integer", name, int(numbers[integer[0]]))
     table_ids = table_ids.astype(np.int64)
     order = np.argsort(table_ids, kind="stable")
     repeated = np.flatnonzero(np.diff(table_ids[order]) == 0)
