@@ -117,15 +117,18 @@ def _write_text(path, text: str) -> None:
 # reading
 
 
-def _data_lines(text: str) -> tuple[list[list[str]], np.ndarray]:
-    """Token lists of the lines that are neither blank nor ``#`` comments, and their 1-based numbers."""
-    rows, numbers = [], []
+def _iter_data_lines(text: str):
+    """``(1-based line number, tokens)`` of each line that is neither blank nor a ``#`` comment."""
     for number, line in enumerate(text.splitlines(), start=1):
         tokens = line.split("#", 1)[0].split()
         if tokens:
-            rows.append(tokens)
-            numbers.append(number)
-    return rows, np.array(numbers, dtype=np.int64)
+            yield number, tokens
+
+
+def _data_lines(text: str) -> tuple[list[list[str]], np.ndarray]:
+    """Token lists of the data lines (:func:`_iter_data_lines`) and their line numbers ``(k,)``."""
+    pairs = list(_iter_data_lines(text))
+    return [tokens for _, tokens in pairs], np.array([number for number, _ in pairs], dtype=np.int64)
 
 
 def _numeric_rows(text: str, path: str, widths: tuple[int, ...], layout: str) -> tuple[np.ndarray, np.ndarray]:
@@ -233,10 +236,9 @@ def sniff_format(text: str, path: str) -> str:
     A line starting with a word is g2o (a tag); a line of 8 numbers is TUM, of 12 numbers KITTI.
     Any other line of numbers is an :class:`InputError` naming the line.
     """
-    rows, numbers = _data_lines(text)
-    if not rows:
+    number, first = next(_iter_data_lines(text), (None, None))
+    if first is None:
         return "g2o"  # the g2o reader gives its own message for an empty file
-    first = rows[0]
     try:
         float(first[0])
     except ValueError:
@@ -246,7 +248,7 @@ def sniff_format(text: str, path: str) -> str:
         return formats[len(first)]
     raise InputError(f"{len(first)} numbers on the first line: neither a TUM trajectory (8: timestamp tx ty tz "
                      "qx qy qz qw) nor a KITTI one (12: a 3x4 pose matrix), nor g2o (a tag first)",
-                     path, int(numbers[0]))
+                     path, number)
 
 
 def file_format(path) -> str:
