@@ -25,6 +25,7 @@ def add_arguments(p) -> None:
     p.add_argument("estimate", metavar="EST", help="estimated poses (g2o, TUM or KITTI file)")
     p.add_argument("reference", metavar="GT", help="reference (ground-truth) poses (g2o, TUM or KITTI file)")
     repair_option(p)
+    # 0.01 = posegraph.io.trajectory.EVO_MAX_TIME_DIFF, not imported here: --help stays free of numpy.
     p.add_argument("--max-time-diff", metavar="SECONDS", type=non_negative_float, default=0.01,
                    help="largest timestamp difference of two matched TUM poses (default 0.01, as evo's "
                         "--t_max_diff); integer keys match exactly")
