@@ -14,13 +14,14 @@ The algorithm (:func:`run_gnc`)::
     repeat:
         w = weights(s(x), μ), known inliers 1       eq. (14) TLS / eq. (12) Geman-McClure
         x = solve(x or x₀, w)                       warm start, or gtsam's restart from x₀
-        stop if w is binary (TLS), the weighted cost ½ Σ w s stalled, or μ reached 1 (GM)
+        stop if w is binary and as at the last iteration (TLS), the weighted cost ½ Σ w s
+        stalled, or μ reached 1 (GM)
         μ = update_mu(μ)                            TLS: μ·step (→ ∞);  GM: max(1, μ/step)
 
 Surrogates (paper eqs. 12 and 14) with ``c̄²`` the threshold:
 
 * TLS: ``w = 1`` if ``s ≤ μ/(μ+1) c̄²``; ``0`` if ``s ≥ (μ+1)/μ c̄²``; else
-  ``√(c̄² μ(μ+1)/s) − μ``. Small μ is nearly convex (least squares); μ → ∞ is TLS.
+  ``√(c̄² μ(μ+1)/s) − μ``. Small μ is convex (ℓ1-like, ``w ≈ √(c̄² μ / s)``); μ → ∞ is TLS.
   ``μ₀ = min_k c̄²/(2 s_k − c̄²)`` over edges with ``2 s_k > c̄²`` (at least 1e-6); none means every
   residual is small and GNC stops at once.
 * Geman-McClure: ``w = (μ c̄² / (μ c̄² + s))²``; large μ is nearly convex, μ = 1 is GM with scale
@@ -173,10 +174,18 @@ def weights_are_binary(weights: np.ndarray, tolerance: float) -> bool:
     return bool(np.all(np.abs(weights - np.round(weights)) <= tolerance))
 
 
-def _stopped(params: GncParams, mu: float, weights: np.ndarray, cost: float, previous: float) -> str | None:
+def _stopped(params: GncParams, mu: float, weights: np.ndarray, last: np.ndarray, cost: float, previous: float) -> str | None:
     if abs(cost - previous) / max(previous, 1e-7) < params.relative_cost_tolerance:
         return "cost"
-    if params.loss == "tls" and weights_are_binary(weights, params.weights_tolerance):
+    # gtsam stops as soon as the weights are binary. With residuals of 1e8 at the first solve
+    # (random outliers across the map) and μ₀ = 1e-6 every first weight is below 1e-4, inliers'
+    # too: "binary" all zero. So binary weights stop the loop only when they also rounded the
+    # same way at the previous iteration.
+    if (
+        params.loss == "tls"
+        and weights_are_binary(weights, params.weights_tolerance)
+        and np.array_equal(np.round(weights), np.round(last))
+    ):
         return "weights"
     if params.loss == "gm" and abs(mu - 1.0) < 1e-9:
         return "mu"
@@ -220,6 +229,7 @@ def run_gnc(
 
     history, reason = [], "max_iterations"
     for iteration in range(params.max_iterations):
+        last = weights if iteration else np.full(m, 0.5)  # nothing to agree with at the first
         weights = np.where(known, 1.0, gnc_weights(squared_residuals(poses), thresholds, mu, params.loss))
         poses = solve_weighted(poses if params.warm_start else poses0, weights)
         cost = 0.5 * float(np.dot(weights, squared_residuals(poses)))
@@ -227,7 +237,7 @@ def run_gnc(
         history.append(record)
         if progress is not None:
             progress(record)
-        stop = _stopped(params, mu, weights, cost, previous)
+        stop = _stopped(params, mu, weights, last, cost, previous)
         if stop is not None:
             reason = stop
             break
