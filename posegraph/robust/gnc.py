@@ -9,7 +9,7 @@ for the edge's dimension: 16.81 for SE(3)). gtsam works with the factor error ``
 
 The algorithm (:func:`run_gnc`)::
 
-    w = 1;  x = solve(x₀, w)                        least squares with every edge
+    w = 1;  x = solve(x₀, w)                        least squares with every edge (or given w)
     μ = initial_mu(s(x₀))                           Remark 5 (gtsam evaluates it at x₀)
     repeat:
         w = weights(s(x), μ), known inliers 1       eq. (14) TLS / eq. (12) Geman-McClure
@@ -200,6 +200,7 @@ def run_gnc(
     params: GncParams | None = None,
     *,
     dimension=6,
+    initial_weights: np.ndarray | None = None,
     progress: Callable[[GncIteration], None] | None = None,
 ) -> GncResult:
     """Graduated non-convexity (module docstring) over a weighted least-squares solver.
@@ -207,8 +208,10 @@ def run_gnc(
     ``squared_residuals(poses) -> s (m,)`` gives ``eᵀΩe`` per edge; ``solve_weighted(start,
     weights) -> poses`` minimises ``½ Σ w_k s_k`` from ``start`` (the solver's own business: it may
     keep its symbolic analysis between calls). ``known_inliers`` ``(m,)`` bool edges stay at
-    weight 1 (e.g. odometry). ``dimension`` (int or ``(m,)``) sets the χ² thresholds. ``progress``
-    is called after each outer iteration with a :class:`GncIteration`.
+    weight 1 (e.g. odometry). ``dimension`` (int or ``(m,)``) sets the χ² thresholds.
+    ``initial_weights`` ``(m,)`` weigh the first solve instead of all ones (gtsam's
+    ``setWeights``), e.g. the weights of a robust start. ``progress`` is called after each outer
+    iteration with a :class:`GncIteration`.
     """
     params = GncParams() if params is None else params
     s0 = np.asarray(squared_residuals(poses0), dtype=np.float64)
@@ -218,7 +221,9 @@ def run_gnc(
         raise ValueError(f"known_inliers must be a ({m},) bool mask, got shape {known.shape}")
     thresholds = inlier_thresholds(dimension, m, params)
 
-    weights = np.ones(m)
+    weights = np.ones(m) if initial_weights is None else np.where(known, 1.0, np.asarray(initial_weights, dtype=np.float64))
+    if weights.shape != (m,):
+        raise ValueError(f"initial_weights must have shape ({m},), got {weights.shape}")
     poses = solve_weighted(poses0, weights)
     mu = initial_mu(s0, thresholds, params.loss)
     previous = 0.5 * float(np.dot(weights, squared_residuals(poses)))
