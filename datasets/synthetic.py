@@ -25,17 +25,27 @@ edges point ``k → k+1``, loop closures from the older vertex to the newer.
 Everything is drawn from ``np.random.default_rng(seed)`` in a fixed order, so the same arguments
 give the same graph, bit for bit, and the same files.
 
-Command line (writes ``OUT`` and ``OUT``'s ``_groundtruth.g2o`` sibling)::
+Random outliers in any graph: :func:`inject_outliers` adds loop closures between random vertex
+pairs with random relative poses (rotation uniform on SO(3), translation uniform in a cube the size
+of the graph) to a graph read from a file, e.g. sphere2500 with 20 % of its loop-closure count.
+
+Outlier files: whenever a written graph has outliers, ``NAME.outliers.txt`` beside ``NAME.g2o``
+lists their 0-based indices in the g2o file's edge-line order, one per line after ``#`` comment
+lines (``np.loadtxt`` reads it; :func:`read_outlier_indices`).
+
+Command line (writes ``OUT``, ``OUT``'s ``_groundtruth.g2o`` sibling and, with outliers,
+``OUT``'s ``.outliers.txt``)::
 
     python -m datasets.synthetic sphere --size 2500 -o sphere.g2o
     python -m datasets.synthetic grid --size 8000 --loop-density 0.5 --outliers 0.1 -o grid.g2o
+    python -m datasets.synthetic inject sphere2500.g2o --fraction 0.2 --seed 1 -o sphere2500_outliers.g2o
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +64,13 @@ __all__ = [
     "shape_arguments",
     "SHAPES",
     "groundtruth_path",
+    "outliers_path",
+    "random_relative_poses",
+    "inject_outliers",
+    "write_outlier_indices",
+    "read_outlier_indices",
     "write_dataset",
+    "write_injected",
     "main",
 ]
 
@@ -568,6 +584,102 @@ def generate(shape: str, size: int | None = None, *, noise: NoiseParams = NoiseP
 
 
 # --------------------------------------------------------------------------------------------
+# Random outliers in any graph
+
+
+def random_relative_poses(rng: np.random.Generator, count: int, translation_range: float) -> np.ndarray:
+    """``(count, 4, 4)`` poses: rotation uniform on SO(3), translation uniform in ``[−r, r]³``."""
+    translation = rng.uniform(-translation_range, translation_range, size=(count, 3))
+    return se3.from_rotation_translation(_random_rotations(rng, count), translation)
+
+
+def _free_pairs(rng: np.random.Generator, graph: PoseGraph, count: int) -> np.ndarray:
+    """``(count, 2)`` distinct vertex pairs (older, newer by id), none an edge of ``graph`` nor
+    neighbours in id order (those are odometry), in the order drawn."""
+    n = graph.num_vertices
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(graph.ids, kind="stable")] = np.arange(n)
+    by_rank = np.argsort(graph.ids, kind="stable")
+    taken = np.unique(np.sort(np.stack([rank[graph.edge_from], rank[graph.edge_to]], 1), axis=1) @ np.array([n, 1]))
+    taken_older, taken_newer = np.divmod(taken, n)
+    free = n * (n - 1) // 2 - max(n - 1, 0) - np.count_nonzero(taken_newer - taken_older > 1)
+    if count > free:
+        raise ValueError(f"{count} outliers asked but only {free} vertex pairs are free")
+    codes = np.zeros(0, np.int64)
+    while len(codes) < count:
+        draw = np.sort(rng.integers(0, n, size=(2 * count + 8, 2)), axis=1)
+        draw = draw[draw[:, 1] - draw[:, 0] > 1] @ np.array([n, 1])
+        merged = np.concatenate([codes, draw[~np.isin(draw, taken)]])
+        _, first = np.unique(merged, return_index=True)
+        codes = merged[np.sort(first)][:count]
+    older, newer = np.divmod(codes, n)
+    return np.stack([by_rank[older], by_rank[newer]], axis=1)
+
+
+def inject_outliers(
+    graph: PoseGraph,
+    *,
+    count: int | None = None,
+    fraction: float | None = None,
+    seed: int = 0,
+    translation_range: float | None = None,
+) -> tuple[PoseGraph, np.ndarray]:
+    """``graph`` plus random wrong loop closures; returns the new graph and their edge indices.
+
+    ``count`` outliers, or ``fraction`` × the graph's loop closures (edges that are not odometry,
+    :meth:`PoseGraph.odometry_mask`): sphere2500's 2,449 loop closures at 0.2 give 490. Each joins a
+    random pair of vertices that are neither neighbours in id order nor already joined, measures a
+    :func:`random_relative_poses` pose (``translation_range`` default: half the diagonal of the
+    bounding box of the graph's positions, at least 1) and carries the information of a random
+    loop closure of the graph (of a random edge if it has none), so it looks like one. Each is
+    inserted after the last edge whose newer vertex comes no later (by id) than its own, the
+    order a front end emits edges in; the original edges keep their order. Returns
+    ``(graph, indices)`` with ``indices`` ``(count,)`` sorted 0-based positions of the outliers
+    in the new graph's edge order, which is its g2o file's edge-line order.
+    """
+    if (count is None) == (fraction is None):
+        raise ValueError("give exactly one of count and fraction")
+    loops = np.flatnonzero(~graph.odometry_mask())
+    if fraction is not None:
+        if not (np.isfinite(fraction) and fraction >= 0):
+            raise ValueError(f"fraction must be a number >= 0, got {fraction!r}")
+        count = int(round(fraction * len(loops)))
+    count = _check_count("count", count, 0)
+    rng = np.random.default_rng(seed)
+    pairs = _free_pairs(rng, graph, count)
+    if translation_range is None:
+        positions = graph.poses[:, :3, 3]
+        translation_range = max(1.0, 0.5 * float(np.linalg.norm(np.ptp(positions, axis=0)))) if len(positions) else 1.0
+    measurements = random_relative_poses(rng, count, translation_range)
+    donors = rng.choice(loops if len(loops) else np.arange(graph.num_edges), size=count)
+
+    # Front-end order: after the last original edge whose newer vertex (by id) is not later.
+    ids = graph.ids
+    newest_so_far = np.maximum.accumulate(np.maximum(ids[graph.edge_from], ids[graph.edge_to])) if graph.num_edges else np.zeros(0, np.int64)
+    order = np.argsort(ids[pairs[:, 1]], kind="stable")
+    pairs, measurements, donors = pairs[order], measurements[order], donors[order]
+    positions = np.searchsorted(newest_so_far, ids[pairs[:, 1]], side="right")
+    indices = positions + np.arange(count)
+    keep = np.ones(graph.num_edges + count, bool)
+    keep[indices] = False
+
+    def merged(original: np.ndarray, added: np.ndarray) -> np.ndarray:
+        out = np.empty((graph.num_edges + count,) + original.shape[1:], dtype=original.dtype)
+        out[keep], out[indices] = original, added
+        return out
+
+    injected = replace(
+        graph,
+        edge_from=merged(graph.edge_from, pairs[:, 0]),
+        edge_to=merged(graph.edge_to, pairs[:, 1]),
+        measurements=merged(graph.measurements, measurements),
+        information=merged(graph.information, graph.information[donors]),
+        edge_source=None,
+    )
+    return injected, indices
+
+
+# --------------------------------------------------------------------------------------------
 # Files
 
 
@@ -577,9 +689,61 @@ def groundtruth_path(path: str | Path) -> Path:
     return path.with_name(f"{path.stem}_groundtruth{path.suffix or '.g2o'}")
 
 
+def outliers_path(path: str | Path) -> Path:
+    """``dir/name.g2o`` → ``dir/name.outliers.txt``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.outliers.txt")
+
+
+def write_outlier_indices(path: str | Path, indices: np.ndarray, graph_name: str) -> None:
+    """Write the 0-based outlier edge indices, one per line, after a ``#`` comment naming the graph."""
+    lines = [
+        f"# 0-based indices of the {len(indices)} outlier edges of {graph_name}, in its edge-line order",
+        *(str(int(k)) for k in np.sort(np.asarray(indices, dtype=np.int64))),
+    ]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def read_outlier_indices(path: str | Path) -> np.ndarray:
+    """``(k,)`` int64 indices written by :func:`write_outlier_indices`."""
+    return np.atleast_1d(np.loadtxt(path, dtype=np.int64, comments="#", ndmin=1))
+
+
+def _check_outputs(*paths: Path) -> None:
+    from posegraph.errors import OutputError
+
+    resolved = [p.resolve() for p in paths]
+    if len(set(resolved)) < len(resolved):
+        raise OutputError("two outputs would be the same file: give other names", str(paths[0]))
+    for target in paths:
+        if not target.resolve().parent.is_dir():
+            raise OutputError(f"the output folder {target.resolve().parent} does not exist", str(target))
+
+
+def write_injected(path: str | Path, graph: PoseGraph, indices: np.ndarray, source: str | Path | None = None) -> tuple[Path, Path]:
+    """Write a graph from :func:`inject_outliers` to ``path`` and its outlier indices to
+    :func:`outliers_path` (both or neither); ``source``, the file it was read from, is never
+    overwritten. Returns both paths."""
+    from posegraph.atomic import StagedOutputs
+    from posegraph.errors import OutputError
+    from posegraph.io.g2o import write_g2o
+
+    path = Path(path)
+    if source is not None and path.resolve() == Path(source).resolve():
+        raise OutputError("the output would overwrite the input graph: give another -o", str(path))
+    indices_path = outliers_path(path)
+    _check_outputs(path, indices_path)
+    with StagedOutputs() as outputs:
+        write_g2o(outputs.stage(path), graph)
+        write_outlier_indices(outputs.stage(indices_path), indices, path.name)
+        outputs.commit()
+    return path, indices_path
+
+
 def write_dataset(path: str | Path, dataset: SyntheticDataset, groundtruth: str | Path | None = None) -> tuple[Path, Path]:
     """Write the noisy graph to ``path`` and the same graph with its vertices at the ground truth
-    to ``groundtruth`` (default :func:`groundtruth_path`). Returns both paths."""
+    to ``groundtruth`` (default :func:`groundtruth_path`); when the graph has outliers, their
+    indices to :func:`outliers_path`. Returns the first two paths."""
     from posegraph.atomic import StagedOutputs
     from posegraph.errors import OutputError
     from posegraph.io.g2o import write_g2o
@@ -588,13 +752,14 @@ def write_dataset(path: str | Path, dataset: SyntheticDataset, groundtruth: str 
     truth_path = Path(groundtruth) if groundtruth is not None else groundtruth_path(path)
     if path.resolve() == truth_path.resolve():
         raise OutputError("the ground truth would overwrite the graph: give another --groundtruth", str(path))
-    for target in (path, truth_path):
-        if not target.resolve().parent.is_dir():
-            raise OutputError(f"the output folder {target.resolve().parent} does not exist", str(target))
-    # Both files appear together or not at all.
+    outputs_list = [path, truth_path] + ([outliers_path(path)] if dataset.outliers.any() else [])
+    _check_outputs(*outputs_list)
+    # All files appear together or not at all.
     with StagedOutputs() as outputs:
         write_g2o(outputs.stage(path), dataset.graph)
         write_g2o(outputs.stage(truth_path), dataset.graph, dataset.ground_truth)
+        if dataset.outliers.any():
+            write_outlier_indices(outputs.stage(outliers_path(path)), np.flatnonzero(dataset.outliers), path.name)
         outputs.commit()
     return path, truth_path
 
@@ -606,7 +771,8 @@ def write_dataset(path: str | Path, dataset: SyntheticDataset, groundtruth: str 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m datasets.synthetic",
-        description="Write a synthetic 3D pose graph (g2o) and its ground truth (NAME_groundtruth.g2o).",
+        description="Write a synthetic 3D pose graph (g2o) and its ground truth (NAME_groundtruth.g2o); "
+        "with outliers, also NAME.outliers.txt. 'python -m datasets.synthetic inject -h': add outliers to a g2o file.",
     )
     parser.add_argument("shape", choices=sorted(SHAPES), help="sphere (as g2o's create_sphere), torus, grid (3D lattice), garage (multi-floor laps)")
     parser.add_argument("--size", type=int, default=None, help="about this many poses (default: the shape's defaults, e.g. sphere 50×50)")
@@ -630,7 +796,48 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _inject_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m datasets.synthetic inject",
+        description="Add random wrong loop closures to a g2o graph; writes OUTPUT and OUTPUT.outliers.txt "
+        "(the 0-based edge-line indices of the added edges).",
+    )
+    parser.add_argument("input", help="g2o file to add outliers to (never overwritten)")
+    parser.add_argument("-o", "--output", required=True, help="output g2o file; NAME.outliers.txt goes next to it")
+    how_many = parser.add_mutually_exclusive_group(required=True)
+    how_many.add_argument("--fraction", type=float, help="outliers per loop closure of the input (e.g. 0.2)")
+    how_many.add_argument("--count", type=int, help="number of outliers")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--translation-range", type=float, default=None, help="outlier translations uniform in ±this per axis (default: half the graph's bounding-box diagonal)")
+    return parser
+
+
+def inject_main(argv: list[str]) -> int:
+    """``python -m datasets.synthetic inject IN -o OUT (--fraction F | --count N) [--seed S]``."""
+    parser = _inject_parser()
+    args = parser.parse_args(argv)
+    from posegraph.errors import InputError
+    from posegraph.io.g2o import read_g2o
+
+    try:
+        graph = read_g2o(args.input)
+        injected, indices = inject_outliers(
+            graph, count=args.count, fraction=args.fraction, seed=args.seed, translation_range=args.translation_range
+        )
+        path, indices_path = write_injected(args.output, injected, indices, source=args.input)
+    except (InputError, OSError) as error:  # InputError is a ValueError: caught first
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except ValueError as error:
+        parser.error(str(error))
+    print(f"{args.input}: {graph.num_edges} edges + {len(indices)} outliers -> {path}, {indices_path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["inject"]:
+        return inject_main(argv[1:])
     parser = _parser()
     args = parser.parse_args(argv)
     try:

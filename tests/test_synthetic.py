@@ -227,3 +227,105 @@ def test_bundled_example_is_what_the_documented_command_makes(tmp_path):
         np.testing.assert_array_equal(a.information, b.information)
     assert EXAMPLE.stat().st_size < 300_000
     assert 200 <= read_g2o(EXAMPLE).num_vertices <= 400
+
+
+# ---------------------------------------------------------------------------------------------
+# Random outliers injected into any graph, and the outlier-index files
+
+
+def _pair_codes(graph):
+    n = graph.num_vertices
+    return np.sort(np.stack([graph.edge_from, graph.edge_to], 1), axis=1) @ np.array([n, 1])
+
+
+@pytest.mark.parametrize("count", [0, 1, 17])
+def test_inject_outliers_adds_random_loop_closures_and_keeps_the_rest(count):
+    clean = grid(4, 3, 3, seed=5).graph
+    graph, indices = synthetic.inject_outliers(clean, count=count, seed=9)
+    assert graph.num_edges == clean.num_edges + count
+    assert indices.shape == (count,) and np.all(np.diff(indices) > 0)
+    kept = np.setdiff1d(np.arange(graph.num_edges), indices)
+    # The original edges, in their order, untouched.
+    for name in ("edge_from", "edge_to", "measurements", "information"):
+        np.testing.assert_array_equal(getattr(graph, name)[kept], getattr(clean, name))
+    # New pairs: not odometry, not an existing edge, not drawn twice.
+    assert not np.any(graph.odometry_mask()[indices])
+    codes = _pair_codes(graph)
+    assert len(np.unique(codes)) == len(codes)
+    # Front-end order: the newer vertex never decreases (the clean grid is in that order).
+    newer = np.maximum(graph.edge_from, graph.edge_to)
+    assert np.all(np.diff(newer) >= 0)
+    # Random proper rigid measurements, with a loop closure's information.
+    rotations = graph.measurements[indices, :3, :3]
+    np.testing.assert_allclose(rotations @ np.swapaxes(rotations, 1, 2), np.broadcast_to(np.eye(3), rotations.shape), atol=1e-12)
+    loop_information = clean.information[~clean.odometry_mask()]
+    for info in graph.information[indices]:
+        assert any(np.array_equal(info, other) for other in loop_information)
+
+
+def test_injected_outliers_are_wrong_and_reproducible():
+    data = sphere(rings=6, nodes_per_ring=8, noise=NoiseParams(noiseless=True), seed=1)
+    graph, indices = synthetic.inject_outliers(data.graph, fraction=0.2, seed=3)
+    assert len(indices) == round(0.2 * data.num_loop_closures)
+    norms = np.linalg.norm(edge_residuals(data.ground_truth, graph), axis=1)
+    outlier = np.zeros(graph.num_edges, bool)
+    outlier[indices] = True
+    assert np.all(norms[~outlier] < 1e-9) and np.all(norms[outlier] > 1e-2)
+    again, same = synthetic.inject_outliers(data.graph, fraction=0.2, seed=3)
+    np.testing.assert_array_equal(same, indices)
+    np.testing.assert_array_equal(again.measurements, graph.measurements)
+    other, _ = synthetic.inject_outliers(data.graph, fraction=0.2, seed=4)
+    assert not np.array_equal(other.measurements, graph.measurements)
+
+
+def test_inject_outliers_bad_arguments():
+    clean = grid(3, 2, 2, seed=1).graph
+    with pytest.raises(ValueError, match="exactly one"):
+        synthetic.inject_outliers(clean, count=2, fraction=0.1)
+    with pytest.raises(ValueError, match="exactly one"):
+        synthetic.inject_outliers(clean)
+    with pytest.raises(ValueError, match="vertex pairs are free"):
+        synthetic.inject_outliers(clean, count=10_000)
+    with pytest.raises(ValueError, match="fraction"):
+        synthetic.inject_outliers(clean, fraction=-0.5)
+
+
+def test_injected_graph_and_indices_round_trip_through_files(tmp_path):
+    clean = torus(rings=3, nodes_per_ring=6, seed=2).graph
+    graph, indices = synthetic.inject_outliers(clean, count=5, seed=0)
+    path, indices_path = synthetic.write_injected(tmp_path / "t.g2o", graph, indices)
+    assert indices_path == tmp_path / "t.outliers.txt"
+    back = read_g2o(path)
+    np.testing.assert_array_equal(synthetic.read_outlier_indices(indices_path), indices)
+    np.testing.assert_allclose(back.measurements[indices], graph.measurements[indices], atol=1e-12)
+    np.testing.assert_array_equal(back.edge_from, graph.edge_from)
+
+
+def test_dataset_with_outliers_writes_their_indices(tmp_path):
+    data = grid(4, 4, 2, noise=NoiseParams(outlier_fraction=0.25), seed=3)
+    synthetic.write_dataset(tmp_path / "g.g2o", data)
+    written = synthetic.read_outlier_indices(tmp_path / "g.outliers.txt")
+    np.testing.assert_array_equal(written, np.flatnonzero(data.outliers))
+    assert len(written) > 0
+    # Without outliers, no index file.
+    synthetic.write_dataset(tmp_path / "h.g2o", grid(3, 3, 2, seed=3))
+    assert not (tmp_path / "h.outliers.txt").exists()
+
+
+def test_cli_inject(tmp_path):
+    source = tmp_path / "in.g2o"
+    synthetic.write_dataset(source, sphere(rings=5, nodes_per_ring=6, seed=1))
+    before = source.read_bytes()
+    out = tmp_path / "out.g2o"
+    done = _cli("inject", str(source), "--fraction", "0.2", "--seed", "2", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    graph, indices = synthetic.inject_outliers(read_g2o(source), fraction=0.2, seed=2)
+    np.testing.assert_array_equal(synthetic.read_outlier_indices(tmp_path / "out.outliers.txt"), indices)
+    assert read_g2o(out).num_edges == graph.num_edges
+    # Never over the input, no traceback, nothing written.
+    refused = _cli("inject", str(source), "--count", "3", "-o", str(source))
+    assert refused.returncode == 1 and "overwrite the input" in refused.stderr and "Traceback" not in refused.stderr
+    assert source.read_bytes() == before
+    too_many = _cli("inject", str(source), "--count", "100000", "-o", str(tmp_path / "x.g2o"))
+    assert too_many.returncode == 2 and "free" in too_many.stderr and "Traceback" not in too_many.stderr
+    assert not (tmp_path / "x.g2o").exists() and not (tmp_path / "x.outliers.txt").exists()

@@ -1,0 +1,14 @@
+"""Robust estimation: M-estimator losses and graduated non-convexity (GNC).
+
+* :mod:`posegraph.robust.losses` — Huber, Cauchy, Geman-McClure, Tukey, DCS and truncated least
+  squares as functions ρ(s) of the squared whitened residual ``s = eᵀΩe`` (cost ``½ Σ ρ(s)``),
+  with their IRLS weights ρ'(s) and second derivatives ρ''(s).
+* :mod:`posegraph.robust.gnc` — the GNC outer loop (Yang, Antonante, Tzoumas & Carlone, RA-L 2020)
+  over any weighted least-squares solver, as gtsam's ``GncOptimizer``.
+
+Neither imports scipy at import time (the χ² quantile is computed on first use).
+"""
+
+from posegraph.robust.losses import LOSS_NAMES, RobustLoss, make_loss
+
+__all__ = ["LOSS_NAMES", "RobustLoss", "make_loss"]
