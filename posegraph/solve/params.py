@@ -8,7 +8,7 @@ gtsam's would stop short of the optimum (see ``docs/solver.md``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Any, Callable, Optional
 
 __all__ = ["SolverParams"]
 
@@ -144,6 +144,12 @@ class SolverParams:
     when the machine was idle, and 0.069 s against 0.18 s while other jobs ran; raise it on a big,
     idle machine with large graphs."""
 
+    loss: Optional[Any] = None
+    """A robust loss of each edge's squared norm ``s = eᵀΩe`` (:class:`posegraph.solve.objective.Loss`:
+    ``rho(s)`` and ``weight(s) = ρ'(s)``, batched over edges): the solver then minimises ``½ Σ ρ(s)``,
+    linearised by IRLS (per-edge weights ``ρ'(s)`` on the gradient and H blocks). None (the
+    default) is least squares, ``½ Σ s``, with exactly the arithmetic of no weights at all."""
+
     callback: Optional[Callable[..., None]] = None
     """Called with each :class:`~posegraph.solve.result.IterationRecord` as it is made (e.g. to print
     progress). Returning ``True`` (or raising ``StopIteration``) stops the solver with reason ``"callback"``."""
@@ -173,5 +179,7 @@ class SolverParams:
             raise ValueError(f"line_search_min_step must be in (0, 1), got {self.line_search_min_step!r}")
         if not 0 < self.sufficient_decrease < 0.5:
             raise ValueError(f"sufficient_decrease must be in (0, 0.5), got {self.sufficient_decrease!r}")
+        if self.loss is not None and not (callable(getattr(self.loss, "rho", None)) and callable(getattr(self.loss, "weight", None))):
+            raise ValueError("loss must have methods rho(s) and weight(s), or be None")
         if self.callback is not None and not callable(self.callback):
             raise ValueError("callback must be callable or None")
