@@ -114,6 +114,15 @@ class SolverParams:
     this enables, sphere2500, torus3D and parking-garage take 2 factorisations instead of 4, at
     final costs equal to 8.2e-10 relative."""
 
+    decrement_stop: bool = True
+    """With ``reuse_factorization``: stop when the Newton decrement under the held factorisation,
+    ``½gᵀM⁻¹g``, is 100 times below the tolerances (M barely damped), after taking its chord step
+    if the cost confirms M's model along it; the last iteration then assembles no H and factorises
+    nothing. Off, such an iteration tests the chord step against the new H and factorises if it is
+    stale. Measured from the chordal start (``benchmarks/solver_heuristics.py``): it saves one
+    factorisation on parking-garage (2 instead of 3), where it stops 2e-10 relative above the
+    optimum with poses 4e-3 from it; elsewhere it changes nothing (``docs/solver.md``)."""
+
     diagonal_damping: bool = True
     """LM: damp with λ·diag(H) (Marquardt, scale invariant; diagonal clamped to
     [``min_diagonal``, ``max_diagonal``] as gtsam does) if True, else with λ·I (gtsam's default,
