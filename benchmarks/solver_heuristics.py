@@ -4,6 +4,7 @@
     python benchmarks/solver_heuristics.py --datasets sphere2500 --variants default no_chord
     PYTHONPATH=/work/main python benchmarks/solver_heuristics.py --json before.json   # another tree
     python benchmarks/solver_heuristics.py --compare before.json after.json          # side by side
+    python benchmarks/solver_heuristics.py --against /work/main --rounds 3            # alternating, one table
 
 Every run starts from the chordal initialisation (computed once per dataset, outside the timing) and
 uses the default parameters except for the variant's changes. Factorisations are counted by wrapping
@@ -112,16 +113,48 @@ def compare(before_path, after_path):
               f"{b['seconds']:.3f} → {r['seconds']:.3f} |")
 
 
+def alternate(other_root, rounds, names, variants, repeat, out_dir):
+    """Run the other tree and this one alternately, ``rounds`` times, in fresh processes (same machine
+    load for both); keep each row's fastest round; print the side-by-side table."""
+    import os
+    import subprocess
+
+    here = str(Path(__file__).resolve().parent.parent)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for k in range(rounds):
+        for label, root in (("before", str(other_root)), ("after", here)):
+            env = dict(os.environ, PYTHONPATH=root)
+            command = [sys.executable, __file__, "--json", str(out_dir / f"{label}{k}.json"), "--repeat", str(repeat),
+                       "--datasets", *names, "--variants", *variants]
+            subprocess.run(command, env=env, check=True)
+    for label in ("before", "after"):
+        best = {}
+        for k in range(rounds):
+            for row in json.loads((out_dir / f"{label}{k}.json").read_text()):
+                key = (row["dataset"], row["variant"])
+                if key not in best or row["seconds"] < best[key]["seconds"]:
+                    best[key] = row
+        (out_dir / f"{label}.json").write_text(json.dumps(list(best.values()), indent=1))
+    compare(out_dir / "before.json", out_dir / "after.json")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--datasets", nargs="+", default=FILES)
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--json", help="write the rows here")
+    parser.add_argument("--against", help="another tree's root: run it and this one alternately")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--out", default="solver_heuristics_runs", help="directory for --against's files")
     parser.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"), help="print two --json files side by side")
     args = parser.parse_args(argv)
     if args.compare:
         compare(*args.compare)
+        return
+    if args.against:
+        alternate(args.against, args.rounds, args.datasets, args.variants, args.repeat, args.out)
         return
     rows = run(args.datasets, args.variants, args.repeat)
     if args.json:
