@@ -6,7 +6,8 @@ Each iteration of :func:`optimize`:
    (:class:`_System`; :mod:`posegraph.solve.objective`, :mod:`posegraph.solve.sparsity`);
 2. **try the held factorisation** ``M`` (:func:`_try_held_factorization`, only after a full step
    whose gain ratio was near 1): its Newton decrement ``½gᵀM⁻¹g`` may show the optimum reached
-   (stop without assembling H), or its chord step ``−M⁻¹g`` may be good enough to take;
+   (stop without assembling H, after taking the chord step ``−M⁻¹g`` if the cost confirms it), or
+   the chord step may be good enough to take;
 3. else **damp, factorise, solve** ``(H + λD) δ = −g`` (:func:`_solve_damped`,
    :class:`~posegraph.solve.trust_region.Damping`) and **judge the step** (:func:`_judge`) by
    the gain ratio ``ρ`` of actual to predicted decrease, shortening an over-promising step by an
@@ -143,6 +144,7 @@ class _Trial:
 
     @property
     def norm(self) -> float:
+        """Euclidean norm of δ (0 without a step)."""
         if self.step is None:
             return 0.0
         return float(np.sqrt(np.einsum("i,i->", self.step, self.step)))
@@ -189,6 +191,7 @@ class _Run:
 
     @property
     def cost(self) -> float:
+        """The cost at the current poses."""
         return self.evaluation.cost
 
     def nothing_to_do(self) -> str | None:
@@ -242,6 +245,7 @@ class _Run:
         )
 
     def result(self, termination: str, records: list, start: float) -> OptimizeResult:
+        """The outcome, with the current poses and cost; ``start`` is when :func:`optimize` began."""
         return OptimizeResult(
             poses=self.poses,
             initial_cost=self.initial_cost,
