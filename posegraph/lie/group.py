@@ -54,12 +54,28 @@ class LieGroup:
 
     @classmethod
     def of(cls, name: str, module: ModuleType, dim: int, matrix_size: int) -> "LieGroup":
-        """The group whose functions are those of ``module`` (named as in :mod:`posegraph.lie.se3`)."""
-        functions = {f: getattr(module, f) for f in _FUNCTIONS}
+        """The group whose functions are those of ``module`` (named as in :mod:`posegraph.lie.se3`).
+
+        Each callable looks its function up in ``module`` when called, so the group always runs
+        what the module holds (a test that replaces ``se3.right_jacobian_inverse`` sees it used
+        by the solver's Jacobians too); the lookup costs ~0.1 µs per batched call.
+        """
+        functions = {f: _forward(module, f) for f in _FUNCTIONS}
         return cls(name=name, dim=dim, matrix_size=matrix_size, **functions)
 
     def __repr__(self) -> str:
         return f"LieGroup({self.name}, dim={self.dim}, matrix_size={self.matrix_size})"
+
+
+def _forward(module: ModuleType, name: str) -> Callable:
+    """``module.<name>(*args)``, looked up at each call."""
+
+    def call(*args):
+        return getattr(module, name)(*args)
+
+    call.__name__, call.__qualname__ = name, f"{module.__name__}.{name}"
+    call.__doc__ = getattr(module, name).__doc__
+    return call
 
 
 _FUNCTIONS = ("exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse")
