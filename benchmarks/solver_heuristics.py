@@ -9,7 +9,8 @@
 Every run starts from the chordal initialisation (computed once per dataset, outside the timing) and
 uses the default parameters except for the variant's changes. Factorisations are counted by wrapping
 the linear solver's ``factorize`` (not read from the records), so the count is the same whatever
-code the records come from. Seconds are ``optimize()``'s wall clock, the best of ``--repeat`` runs.
+code the records come from. Seconds are ``optimize()``'s wall clock, the best of ``--repeat`` runs, and the process CPU
+seconds of that run (steadier than wall clock on a loaded machine: the solver runs on one thread).
 The code measured is the ``posegraph`` first on ``sys.path`` (``PYTHONPATH``), so the same script
 measures the tree before and after a change.
 """
@@ -82,35 +83,37 @@ def run(names, variants, repeat):
             best = None
             for _ in range(repeat):
                 counter["factorize"] = 0
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 result = optimize(graph, initial=start, params=SolverParams(**changes))
-                seconds = time.perf_counter() - t0
+                seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
                 if best is None or seconds < best[1]:
-                    best = (result, seconds, counter["factorize"])
-            result, seconds, factorizations = best
+                    best = (result, seconds, counter["factorize"], cpu)
+            result, seconds, factorizations, cpu = best
             row = dict(dataset=name, variant=variant, cost=result.final_cost, iterations=result.iterations,
-                       factorizations=factorizations, seconds=seconds, termination=result.termination)
+                       factorizations=factorizations, seconds=seconds, cpu_seconds=cpu,
+                       termination=result.termination)
             rows.append(row)
             print(f"{name:24s} {variant:18s} {result.final_cost:.12g} it={result.iterations} "
-                  f"fact={factorizations} {seconds:.3f}s {result.termination}", file=sys.stderr)
+                  f"fact={factorizations} {seconds:.3f}s cpu {cpu:.3f}s {result.termination}", file=sys.stderr)
     return rows
 
 
 def compare(before_path, after_path):
     before = {(r["dataset"], r["variant"]): r for r in json.loads(Path(before_path).read_text())}
     after = json.loads(Path(after_path).read_text())
-    print("| dataset | variant | cost before | cost after | rel. diff | iterations | factorisations | seconds |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| dataset | variant | cost before | cost after | rel. diff | iterations | factorisations | seconds | CPU seconds |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in after:
         b = before.get((r["dataset"], r["variant"]))
         if b is None:
             print(f"| {r['dataset']} | {r['variant']} | — | {r['cost']:.12g} | — | {r['iterations']} | "
-                  f"{r['factorizations']} | {r['seconds']:.3f} |")
+                  f"{r['factorizations']} | {r['seconds']:.3f} | {r.get('cpu_seconds', float('nan')):.3f} |")
             continue
         rel = (r["cost"] - b["cost"]) / b["cost"]
         print(f"| {r['dataset']} | {r['variant']} | {b['cost']:.12g} | {r['cost']:.12g} | {rel:.1e} | "
               f"{b['iterations']} → {r['iterations']} | {b['factorizations']} → {r['factorizations']} | "
-              f"{b['seconds']:.3f} → {r['seconds']:.3f} |")
+              f"{b['seconds']:.3f} → {r['seconds']:.3f} | "
+              f"{b.get('cpu_seconds', float('nan')):.3f} → {r.get('cpu_seconds', float('nan')):.3f} |")
 
 
 def alternate(other_root, rounds, names, variants, repeat, out_dir):
