@@ -7,7 +7,10 @@ Conventions
 -----------
 * Vertex ``k`` (``0 <= k < n``) has the user's integer id ``ids[k]``; ids need
   not be ``0..n-1`` nor sorted. Edges refer to vertices by *index* ``k``, not id.
-* ``poses[k]`` is the ``(4, 4)`` SE(3) matrix ``X_k`` (world-from-body).
+* ``group`` is the Lie group of the poses (:class:`posegraph.lie.group.LieGroup`, SE(3) unless
+  given): ``poses[k]`` is its ``(k, k)`` matrix ``X_k`` (world-from-body), ``k = group.matrix_size``
+  (4 for SE(3)), and residuals, information matrices and solver blocks have ``d = group.dim`` rows
+  (6 for SE(3)).
 * Edge ``e`` goes from ``edge_from[e] = i`` to ``edge_to[e] = j`` and measures
   ``Z_ij ≈ X_i⁻¹ X_j``; its residual is ``Log(Z_ij⁻¹ X_i⁻¹ X_j)`` in ``[ω; v]``
   order and ``information[e]`` is the ``(6, 6)`` matrix Ω in that same
@@ -25,6 +28,8 @@ import zlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from posegraph.lie.group import SE3, LieGroup
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
@@ -71,26 +76,31 @@ class EdgeSource:
 
 @dataclass(frozen=True, eq=False)
 class PoseGraph:
-    """A 3D pose graph stored as arrays (see the module docstring for conventions)."""
+    """A pose graph stored as arrays (see the module docstring for conventions); 3D unless ``group`` says otherwise."""
 
     ids: np.ndarray
     """``(n,)`` int64 — the user's vertex ids, in file order."""
     poses: np.ndarray
-    """``(n, 4, 4)`` float64 — vertex poses ``X_k`` (initial values as read)."""
+    """``(n, k, k)`` float64 — vertex poses ``X_k`` (initial values as read); ``k = group.matrix_size``."""
     edge_from: np.ndarray
     """``(m,)`` int64 — index ``i`` (into ``ids``) of each edge's first vertex."""
     edge_to: np.ndarray
     """``(m,)`` int64 — index ``j`` of each edge's second vertex."""
     measurements: np.ndarray
-    """``(m, 4, 4)`` float64 — measured relative poses ``Z_ij``."""
+    """``(m, k, k)`` float64 — measured relative poses ``Z_ij``."""
     information: np.ndarray
-    """``(m, 6, 6)`` float64 — information matrices Ω in ``[ω; v]`` order."""
+    """``(m, d, d)`` float64 — information matrices Ω in the group's tangent order (``[ω; v]`` for
+    SE(3)), ``d = group.dim``."""
     fixed: np.ndarray = field(default=None)  # type: ignore[assignment]
     """``(n,)`` bool — vertices held constant (g2o ``FIX``); all False if None is given."""
     source: str | None = None
     """Path the graph was read from, if any (used in messages)."""
     edge_source: EdgeSource | None = field(default=None, repr=False)
     """The edge lines as read, for a writer to copy (see :class:`EdgeSource`); None if not kept."""
+    group: LieGroup = SE3
+    """The Lie group of the poses and measurements (:data:`posegraph.lie.group.SE3` by default). The
+    solver takes every size from it: tangent dimension ``group.dim`` (the block size of the normal
+    equations) and matrix size ``group.matrix_size``; residuals and Jacobians use its functions."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:
@@ -105,7 +115,7 @@ class PoseGraph:
         return int(self.edge_from.shape[0])
 
     def with_poses(self, poses: np.ndarray) -> "PoseGraph":
-        """The same graph with other vertex poses ``(n, 4, 4)``."""
+        """The same graph with other vertex poses ``(n, k, k)``."""
         poses = np.asarray(poses, dtype=np.float64)
         if poses.shape != self.poses.shape:
             raise ValueError(f"poses must have shape {self.poses.shape}, got {poses.shape}")

@@ -167,3 +167,10 @@ def test_with_poses(graph):
     assert other.ids is graph.ids and graph.poses[:, 0, 3].tolist() == [0.0] * 6
     with pytest.raises(ValueError, match="shape"):
         graph.with_poses(moved[:3])
+
+
+def test_the_group_defaults_to_se3_and_travels_with_the_graph(graph):
+    from posegraph.lie.group import SE3
+
+    assert graph.group is SE3 and (graph.group.dim, graph.group.matrix_size) == (6, 4)
+    assert graph.with_poses(graph.poses).group is SE3

@@ -1,4 +1,4 @@
-"""Sparse Gauss-Newton / Levenberg-Marquardt for SE(3) pose graphs.
+"""Sparse Gauss-Newton / Levenberg-Marquardt for pose graphs (SE(3) by default, any ``graph.group``).
 
 ::
 
@@ -10,10 +10,13 @@
     print(result.summary())
 
 Modules: :mod:`~posegraph.solve.residuals` (residuals, cost, Jacobians),
-:mod:`~posegraph.solve.linearize` (per-edge normal-equation blocks),
+:mod:`~posegraph.solve.linearize` (per-edge normal-equation blocks, optional per-edge weights),
+:mod:`~posegraph.solve.objective` (the cost the loop minimises, with an optional robust loss),
 :mod:`~posegraph.solve.sparsity` (block pattern and scatter),
 :mod:`~posegraph.solve.linear` (CHOLMOD / SuperLU backends),
-:mod:`~posegraph.solve.optimizer` (the GN and LM loops),
+:mod:`~posegraph.solve.optimizer` (the trust-region loop),
+:mod:`~posegraph.solve.trust_region` (damping, line search, stopping tests),
+:mod:`~posegraph.solve.clock` (seconds per phase),
 :mod:`~posegraph.solve.params` and :mod:`~posegraph.solve.result` (dataclasses).
 """
 

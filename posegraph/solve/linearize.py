@@ -1,19 +1,25 @@
 """Per-edge blocks of the Gauss-Newton normal equations, all edges in one batch.
 
 For an edge with Jacobians ``A_i = ∂e/∂δ_i``, ``A_j = ∂e/∂δ_j`` (see
-:mod:`posegraph.solve.residuals`) and information Ω, its share of
-``H = Jᵀ Ω J`` and ``g = Jᵀ Ω e`` is::
+:mod:`posegraph.solve.residuals`), information Ω and weight ``w`` (1 without a
+robust loss), its share of ``H = Jᵀ W Ω J`` and ``g = Jᵀ W Ω e`` is::
 
-    H_ii = A_iᵀ Ω A_i,  H_jj = A_jᵀ Ω A_j,  H_ij = A_iᵀ Ω A_j  (H_ji = H_ijᵀ),
-    g_i  = A_iᵀ Ω e,    g_j  = A_jᵀ Ω e.
+    H_ii = w A_iᵀ Ω A_i,  H_jj = w A_jᵀ Ω A_j,  H_ij = w A_iᵀ Ω A_j  (H_ji = H_ijᵀ),
+    g_i  = w A_iᵀ Ω e,    g_j  = w A_jᵀ Ω e.
 
 Because ``A_j = Jr⁻¹(e) =: B`` and ``A_i = −B · Ad`` with ``Ad = Ad(X_j⁻¹ X_i)``,
-every product goes through ``W = Bᵀ Ω B`` and ``w = Bᵀ Ω e``::
+every product goes through ``W = w Bᵀ Ω B`` and ``g_j = w Bᵀ Ω e``::
 
-    H_jj = W,  H_ij = −Adᵀ W,  H_ii = Adᵀ W Ad = −H_ij Ad,  g_j = w,  g_i = −Adᵀ w,
+    H_jj = W,  H_ij = −Adᵀ W,  H_ii = Adᵀ W Ad = −H_ij Ad,  g_i = −Adᵀ g_j,
 
-four batched 6×6 products per edge instead of forming ``A_i`` and three
-weighted products.
+four batched d×d products per edge (d = ``graph.group.dim``, 6 for SE(3)) instead
+of forming ``A_i`` and three weighted products.
+
+Weights: a robust loss ``ρ`` of the squared norm ``s = eᵀΩe`` (cost ``½ Σ ρ(s)``) has
+the gradient ``Σ ρ'(s) Jᵀ Ω e``, so its iteratively reweighted least-squares
+(IRLS) system is this one with ``w = ρ'(s)`` per edge (:mod:`posegraph.solve.objective`).
+``weights=None`` skips the products altogether; ``weights = 1`` gives bit-identical
+blocks (a product by 1.0 is exact).
 """
 
 from __future__ import annotations
@@ -24,16 +30,15 @@ from functools import cached_property
 import numpy as np
 
 from posegraph.graph import PoseGraph
-from posegraph.lie import se3
 from posegraph.solve import residuals as _residuals
-from posegraph.solve.residuals import edge_errors
+from posegraph.solve.residuals import edge_errors, residual_jacobian_factors
 
 __all__ = ["EdgeBlocks", "linearize"]
 
 
 @dataclass(frozen=True, eq=False)
 class EdgeBlocks:
-    """The linearisation of every edge at one set of poses.
+    """The linearisation of every edge at one set of poses (``d`` = the group's tangent dimension).
 
     The gradient blocks are computed at once; the Hessian blocks on first use of
     :attr:`hessian_blocks` (then kept): a solver that finds from the gradient alone that it has
@@ -41,26 +46,30 @@ class EdgeBlocks:
     """
 
     residuals: np.ndarray
-    """``(m, 6)`` residuals ``e``."""
+    """``(m, d)`` residuals ``e``."""
     cost: float
-    """``½ Σ eᵀ Ω e``."""
+    """``½ Σ eᵀ Ω e`` (unweighted: the cost without a loss)."""
     gradient: np.ndarray
-    """``(m, 2, 6)``: ``[g_i, g_j]`` per edge."""
+    """``(m, 2, d)``: ``[g_i, g_j]`` per edge, weights applied."""
     jacobian_inverse: np.ndarray
-    """``(m, 6, 6)``: ``B = Jr⁻¹(e) = ∂e/∂δ_j``."""
+    """``(m, d, d)``: ``B = Jr⁻¹(e) = ∂e/∂δ_j``."""
     adjoint: np.ndarray
-    """``(m, 6, 6)``: ``Ad(X_j⁻¹ X_i)`` (so ``∂e/∂δ_i = −B·Ad``)."""
+    """``(m, d, d)``: ``Ad(X_j⁻¹ X_i)`` (so ``∂e/∂δ_i = −B·Ad``)."""
     information: np.ndarray
-    """``(m, 6, 6)``: Ω, C-contiguous."""
+    """``(m, d, d)``: Ω, C-contiguous."""
+    weights: np.ndarray | None = None
+    """``(m,)`` per-edge weights ``w`` scaling every block of the edge, or None (all 1, no products)."""
 
     @cached_property
     def hessian_blocks(self) -> tuple:
-        """``(H_ii, H_jj, H_ij)``, each ``(m, 6, 6)``: ``W = BᵀΩB``, ``H_jj = W``, ``H_ij = −AdᵀW``,
+        """``(H_ii, H_jj, H_ij)``, each ``(m, d, d)``: ``W = w BᵀΩB``, ``H_jj = W``, ``H_ij = −AdᵀW``,
         ``H_ii = −H_ij Ad`` (kept apart: stacking them would copy ~5 MB per iteration on a
         6,000-edge graph for nothing, the assembly reads them one by one)."""
         def compute(part):
             b, adjoint = self.jacobian_inverse[part], self.adjoint[part]
             w = np.swapaxes(b, -1, -2) @ (self.information[part] @ b)  # H_jj = Bᵀ Ω B
+            if self.weights is not None:
+                w *= self.weights[part, None, None]
             h_ij = np.swapaxes(adjoint, -1, -2) @ w
             np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
             h_ii = h_ij @ adjoint
@@ -71,7 +80,7 @@ class EdgeBlocks:
 
     @property
     def hessian(self) -> np.ndarray:
-        """``(m, 3, 6, 6)``: ``[H_ii, H_jj, H_ij]`` per edge (a stacked copy)."""
+        """``(m, 3, d, d)``: ``[H_ii, H_jj, H_ij]`` per edge (a stacked copy)."""
         return np.stack(self.hessian_blocks, axis=1)
 
 
@@ -80,33 +89,42 @@ def linearize(
     graph: PoseGraph,
     information: np.ndarray | None = None,
     errors: tuple[np.ndarray, np.ndarray] | None = None,
+    weights: np.ndarray | None = None,
 ) -> EdgeBlocks:
-    """Residuals, cost and per-edge normal-equation blocks at ``poses`` ``(n, 4, 4)``.
+    """Residuals, cost and per-edge normal-equation blocks at ``poses`` ``(n, k, k)``.
 
     ``information`` defaults to ``graph.information``; the solver passes a C-contiguous copy made
-    once (batched 6×6 products are several times slower on other memory layouts). ``errors`` is
+    once (batched d×d products are several times slower on other memory layouts). ``errors`` is
     ``edge_errors(poses, graph)`` if already computed (the solver has it from evaluating the step).
+    ``weights`` ``(m,)`` scales each edge's gradient and Hessian blocks (IRLS weights of a robust
+    loss, see the module docstring); None is the plain least-squares system.
     """
     relative, residuals = edge_errors(poses, graph) if errors is None else errors
     if information is None:
         information = np.ascontiguousarray(graph.information)
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (graph.num_edges,):
+            raise ValueError(f"weights must have shape ({graph.num_edges},), got {weights.shape}")
+
     def compute(part):
         e = residuals[part]
-        b = se3.right_jacobian_inverse(e)  # ∂e/∂δ_j = B
-        adjoint = se3.adjoint(se3.inverse(relative[part]))  # Ad(X_j⁻¹ X_i)
+        b, adjoint = residual_jacobian_factors(graph.group, e, relative[part])  # ∂e/∂δ_j = B
         omega_e = information[part] @ e[..., None]
         g_j = np.swapaxes(b, -1, -2) @ omega_e  # g_j = Bᵀ Ω e
+        if weights is not None:
+            g_j *= weights[part, None, None]
         g_i = -(np.swapaxes(adjoint, -1, -2) @ g_j)  # g_i = −Adᵀ g_j
         terms = np.einsum("mi,mi->m", e, omega_e[..., 0])  # eᵀ Ω e per edge
         return b, adjoint, np.stack([g_i[..., 0], g_j[..., 0]], axis=1), terms
 
     b, adjoint, gradient, terms = _residuals.by_slices(residuals.shape[0], compute)  # for the caches
-    cost = 0.5 * float(np.sum(terms))
     return EdgeBlocks(
         residuals=residuals,
-        cost=cost,
+        cost=0.5 * float(np.sum(terms)),
         gradient=gradient,
         jacobian_inverse=b,
         adjoint=adjoint,
         information=information,
+        weights=weights,
     )

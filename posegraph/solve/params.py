@@ -8,7 +8,7 @@ gtsam's would stop short of the optimum (see ``docs/solver.md``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Any, Callable, Optional
 
 __all__ = ["SolverParams"]
 
@@ -110,9 +110,18 @@ class SolverParams:
     that factorisation along it, its predicted decrease is at most a tenth of the last decrease
     (or already within the tolerances) and its gain ratio exceeds ``min_gain_ratio``; otherwise
     the system is factorised as usual, after one triangular solve spent in vain (see
-    :mod:`posegraph.solve.optimizer`). From the chordal start, with the Newton-decrement stop
-    this enables, sphere2500, torus3D and parking-garage take 2 factorisations instead of 4, at
-    final costs equal to 8.2e-10 relative."""
+    :mod:`posegraph.solve.optimizer`). From the chordal start sphere2500, torus3D and
+    parking-garage take 2 factorisations instead of 4, the other shared files 1–3 fewer or the
+    same, at the same iterations and final costs within 2e-10 relative (``docs/solver.md``)."""
+
+    decrement_stop: bool = True
+    """With ``reuse_factorization``: stop when the Newton decrement under the held factorisation,
+    ``½gᵀM⁻¹g``, is 100 times below the tolerances (M barely damped), after taking its chord step
+    if the cost confirms M's model along it; the last iteration then assembles no H and factorises
+    nothing. Off, such an iteration tests the chord step against the new H and factorises if it is
+    stale. Measured from the chordal start (``benchmarks/solver_heuristics.py``): it saves one
+    factorisation on parking-garage (2 instead of 3), where it stops 2e-10 relative above the
+    optimum with poses 4e-3 from it; elsewhere it changes nothing (``docs/solver.md``)."""
 
     diagonal_damping: bool = True
     """LM: damp with λ·diag(H) (Marquardt, scale invariant; diagonal clamped to
@@ -144,6 +153,12 @@ class SolverParams:
     when the machine was idle, and 0.069 s against 0.18 s while other jobs ran; raise it on a big,
     idle machine with large graphs."""
 
+    loss: Optional[Any] = None
+    """A robust loss of each edge's squared norm ``s = eᵀΩe`` (:class:`posegraph.solve.objective.Loss`:
+    ``rho(s)`` and ``weight(s) = ρ'(s)``, batched over edges): the solver then minimises ``½ Σ ρ(s)``,
+    linearised by IRLS (per-edge weights ``ρ'(s)`` on the gradient and H blocks). None (the
+    default) is least squares, ``½ Σ s``, with exactly the arithmetic of no weights at all."""
+
     callback: Optional[Callable[..., None]] = None
     """Called with each :class:`~posegraph.solve.result.IterationRecord` as it is made (e.g. to print
     progress). Returning ``True`` (or raising ``StopIteration``) stops the solver with reason ``"callback"``."""
@@ -173,5 +188,7 @@ class SolverParams:
             raise ValueError(f"line_search_min_step must be in (0, 1), got {self.line_search_min_step!r}")
         if not 0 < self.sufficient_decrease < 0.5:
             raise ValueError(f"sufficient_decrease must be in (0, 0.5), got {self.sufficient_decrease!r}")
+        if self.loss is not None and not (callable(getattr(self.loss, "rho", None)) and callable(getattr(self.loss, "weight", None))):
+            raise ValueError("loss must have methods rho(s) and weight(s), or be None")
         if self.callback is not None and not callable(self.callback):
             raise ValueError("callback must be callable or None")

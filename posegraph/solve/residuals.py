@@ -1,8 +1,11 @@
-"""Edge residuals, the cost and the residual Jacobians of an SE(3) pose graph.
+"""Edge residuals, the cost and the residual Jacobians of a pose graph, over its group.
 
-Conventions (``docs/architecture.md``): poses are ``(n, 4, 4)`` world-from-body
-matrices, tangents are ``[ω; v]`` (rotation first), perturbations are on the
-right, ``X ⊕ δ = X · Exp(δ)``.
+Conventions (``docs/architecture.md``): poses are ``(n, k, k)`` world-from-body
+matrices of ``graph.group`` (``k = 4`` for SE(3)), tangents have ``d = graph.group.dim``
+entries in the group's order (``[ω; v]``, rotation first, for SE(3)), perturbations
+are on the right, ``X ⊕ δ = X · Exp(δ)``. Every function here takes the group's
+functions from ``graph.group`` (:class:`posegraph.lie.group.LieGroup`); the derivation
+below holds for any matrix Lie group.
 """
 
 from __future__ import annotations
@@ -10,9 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.graph import PoseGraph
-from posegraph.lie import se3
 
-__all__ = ["edge_residuals", "cost", "weighted_cost", "edge_jacobians", "edge_errors"]
+__all__ = ["edge_residuals", "cost", "weighted_cost", "squared_norms", "edge_jacobians", "edge_errors", "residual_jacobian_factors"]
 
 # The residual of one edge
 # ------------------------
@@ -26,7 +28,7 @@ __all__ = ["edge_residuals", "cost", "weighted_cost", "edge_jacobians", "edge_er
 # which is the identity when the measurement is met exactly. The residual is
 # that discrepancy expressed in the tangent space at the identity,
 #
-#     e_ij = Log(E_ij) ∈ R⁶,  [ω; v]: rotation error (axis·angle), then translation,
+#     e_ij = Log(E_ij) ∈ R^d (R⁶ for SE(3)),  [ω; v]: rotation error (axis·angle), then translation,
 #
 # and the cost is the squared Mahalanobis norm summed over edges,
 #
@@ -83,32 +85,39 @@ def by_slices(m: int, compute):
 
 
 def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
-    """Relative poses ``X_i⁻¹ X_j`` ``(m, 4, 4)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, 6)``."""
+    """Relative poses ``X_i⁻¹ X_j`` ``(m, k, k)`` and residuals ``Log(Z⁻¹ X_i⁻¹ X_j)`` ``(m, d)``."""
     poses = np.asarray(poses, dtype=np.float64)
+    group = graph.group
 
     def compute(part):
-        relative = se3.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
-        return relative, se3.log(se3.between(graph.measurements[part], relative))
+        relative = group.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
+        return relative, group.log(group.between(graph.measurements[part], relative))
 
     return by_slices(graph.num_edges, compute)  # slices, for the caches (CHUNK_EDGES)
 
 
 def edge_residuals(poses: np.ndarray, graph: PoseGraph) -> np.ndarray:
-    """Residuals ``e_ij = Log(Z_ij⁻¹ · X_i⁻¹ · X_j)`` of all edges, ``(m, 6)`` in ``[ω; v]`` order.
+    """Residuals ``e_ij = Log(Z_ij⁻¹ · X_i⁻¹ · X_j)`` of all edges, ``(m, d)`` in the group's tangent order.
 
-    ``poses`` is ``(n, 4, 4)`` in the graph's vertex order.
+    ``poses`` is ``(n, k, k)`` in the graph's vertex order.
     """
     return edge_errors(poses, graph)[1]
 
 
 def weighted_cost(residuals: np.ndarray, information: np.ndarray) -> float:
-    """``½ Σ_k r_kᵀ Ω_k r_k`` for residuals ``(m, 6)`` and informations ``(m, 6, 6)``."""
+    """``½ Σ_k r_kᵀ Ω_k r_k`` for residuals ``(m, d)`` and informations ``(m, d, d)``."""
     weighted = (information @ residuals[..., None])[..., 0]
     return 0.5 * float(np.einsum("mi,mi->", residuals, weighted))
 
 
+def squared_norms(residuals: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """``(m,)`` squared Mahalanobis norms ``s_k = r_kᵀ Ω_k r_k``: what a robust loss ``ρ(s)`` reads."""
+    weighted = (information @ residuals[..., None])[..., 0]
+    return np.einsum("mi,mi->m", residuals, weighted)
+
+
 def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
-    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, 4, 4)`` (the graph's own poses if None).
+    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, k, k)`` (the graph's own poses if None).
 
     Equals gtsam's ``NonlinearFactorGraph.error(values)`` for the graph ``gtsam.readG2o`` builds.
     """
@@ -120,7 +129,7 @@ def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
 def edge_jacobians(
     poses: np.ndarray, graph: PoseGraph, residuals: np.ndarray | None = None, relative: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobians ``(∂e/∂δ_i, ∂e/∂δ_j)`` of every edge residual, each ``(m, 6, 6)``.
+    """Jacobians ``(∂e/∂δ_i, ∂e/∂δ_j)`` of every edge residual, each ``(m, d, d)``.
 
     With right perturbations ``X ← X · Exp(δ)`` (derivation above :func:`edge_residuals`)::
 
@@ -130,6 +139,13 @@ def edge_jacobians(
     """
     if residuals is None or relative is None:
         relative, residuals = edge_errors(poses, graph)
-    jr_inv = se3.right_jacobian_inverse(residuals)
-    jacobian_i = -jr_inv @ se3.adjoint(se3.inverse(relative))
-    return jacobian_i, jr_inv
+    jr_inv, adjoint = residual_jacobian_factors(graph.group, residuals, relative)
+    return -jr_inv @ adjoint, jr_inv
+
+
+def residual_jacobian_factors(group, residuals: np.ndarray, relative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Jr⁻¹(e), Ad(X_j⁻¹ X_i))``, each ``(m, d, d)``: ``∂e/∂δ_j = Jr⁻¹(e)``, ``∂e/∂δ_i = −Jr⁻¹(e)·Ad``.
+
+    ``group`` is a :class:`posegraph.lie.group.LieGroup`; ``relative`` is ``X_i⁻¹ X_j`` ``(m, k, k)``.
+    """
+    return group.right_jacobian_inverse(residuals), group.adjoint(group.inverse(relative))

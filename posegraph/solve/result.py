@@ -67,8 +67,9 @@ class OptimizeResult:
     termination: str
     """Why the solver stopped: ``"converged: relative decrease"``, ``"converged: absolute decrease"``,
     ``"converged: cost below tolerance"``, ``"converged: predicted decrease below tolerance"``,
-    ``"converged: Newton decrement below tolerance"`` (the last record then took no step: ``½gᵀM⁻¹g``
-    under the held factorisation was 100 times below the tolerances), ``"converged: nothing to
+    ``"converged: Newton decrement below tolerance"`` (``½gᵀM⁻¹g`` under the held factorisation was
+    100 times below the tolerances; the last record took its chord step if the cost confirmed it,
+    else no step), ``"converged: nothing to
     optimise"``, ``"maximum iterations"``, ``"lambda exceeded bound"``,
     ``"no decrease"`` (Gauss-Newton: neither the step nor any shortening of it decreased the cost),
     ``"linear system not positive definite"``, ``"non-finite cost"`` or ``"callback"``."""

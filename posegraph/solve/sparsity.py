@@ -1,10 +1,12 @@
 """Block sparsity of the normal equations, analysed once per graph.
 
 The Gauss-Newton matrix ``H = Σ_e J_eᵀ Ω_e J_e`` of a pose graph has one
-6×6 block per free vertex on the diagonal and one 6×6 block per pair of free
-vertices joined by at least one edge. Only the **lower triangle** is stored,
+d×d block per free vertex on the diagonal and one d×d block per pair of free
+vertices joined by at least one edge, ``d`` the tangent dimension of the
+graph's group (6 for SE(3), 3 for SE(2)). Only the **lower triangle** is stored,
 in CSC form (the layout CHOLMOD reads with ``stype = -1``): diagonal blocks
-keep their 21 entries on and below the diagonal, off-diagonal blocks all 36.
+keep their d(d+1)/2 entries on and below the diagonal (21 for SE(3)),
+off-diagonal blocks all d² (36).
 
 :func:`analyze_pattern` computes that layout once, together with the position
 in the CSC ``data`` array of every entry of every edge's blocks ``H_ii``,
@@ -19,7 +21,7 @@ numpy only: no scipy.sparse here (its import costs ~0.1 s per process, see
 
 Variables: vertex ``k`` is *free* unless ``held[k]``; free vertices are
 numbered ``0..p-1`` in vertex order and vertex ``k``'s tangent occupies rows
-``6·c .. 6·c+5`` of the system, ``c = variable_of[k]``.
+``d·c .. d·c+d−1`` of the system, ``c = variable_of[k]``.
 """
 
 from __future__ import annotations
@@ -28,10 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from posegraph.lie.group import SE3
+
 __all__ = ["HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc"]
 
-BLOCK = 6
-"""Tangent dimension of SE(3): the block size."""
+BLOCK = SE3.dim
+"""The default block size, SE(3)'s tangent dimension (graphs of other groups pass ``group.dim``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,32 +47,34 @@ class HessianPattern:
     variable_of: np.ndarray
     """``(n,)`` int64: block column of each vertex, ``-1`` for held (fixed or anchored) vertices."""
     num_variables: int
-    """Number of free vertices ``p``; the system has dimension ``6p``."""
+    """Number of free vertices ``p``; the system has dimension ``dp``."""
     indptr: np.ndarray
-    """``(6p + 1,)`` int32 CSC column pointers of the lower triangle."""
+    """``(dp + 1,)`` int32 CSC column pointers of the lower triangle."""
     indices: np.ndarray
     """``(nnz,)`` int32 CSC row indices, sorted within each column (diagonal entry first)."""
     diagonal: np.ndarray
-    """``(6p,)`` int64 positions of the diagonal entries in ``data``."""
+    """``(dp,)`` int64 positions of the diagonal entries in ``data``."""
     block_indptr: np.ndarray
     """``(p + 1,)`` int32 CSC column pointers of the *vertex* pattern: the lower triangle of the
-    p×p graph of free vertices, one entry per stored 6×6 block (for block orderings)."""
+    p×p graph of free vertices, one entry per stored d×d block (for block orderings)."""
     block_indices: np.ndarray
     """``(p + number of off-diagonal blocks,)`` int32 rows of that pattern, diagonal first in each column."""
     entry_columns: np.ndarray
     """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
     hessian_positions: np.ndarray
-    """``(3, 36·m)`` intp: row ``k`` holds the position in ``data`` of each entry of the ``k``-th
-    per-edge blocks ``(m, 6, 6)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
+    """``(3, d²·m)`` intp: row ``k`` holds the position in ``data`` of each entry of the ``k``-th
+    per-edge blocks ``(m, d, d)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
     entries that are not stored."""
     gradient_positions: np.ndarray
-    """``(12·m,)`` intp: row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
-    ``(m, 2, 6)`` stacking ``[g_i, g_j]`` of each edge; ``6p`` for held vertices' entries."""
+    """``(2d·m,)`` intp: row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
+    ``(m, 2, d)`` stacking ``[g_i, g_j]`` of each edge; ``dp`` for held vertices' entries."""
+    block_size: int = BLOCK
+    """Block size ``d``: the tangent dimension of the graph's group (6 for SE(3))."""
 
     @property
     def dimension(self) -> int:
-        """Size ``6p`` of the linear system."""
-        return BLOCK * self.num_variables
+        """Size ``dp`` of the linear system."""
+        return self.block_size * self.num_variables
 
     @property
     def nnz(self) -> int:
@@ -76,14 +82,14 @@ class HessianPattern:
         return int(self.indices.shape[0])
 
     def expand(self, delta: np.ndarray) -> np.ndarray:
-        """``(6p,)`` solution vector -> ``(n, 6)`` per-vertex tangent steps, zero for held vertices."""
-        out = np.zeros((self.num_vertices, BLOCK))
+        """``(dp,)`` solution vector -> ``(n, d)`` per-vertex tangent steps, zero for held vertices."""
+        out = np.zeros((self.num_vertices, self.block_size))
         free = self.variable_of >= 0
-        out[free] = np.asarray(delta).reshape(-1, BLOCK)
+        out[free] = np.asarray(delta).reshape(-1, self.block_size)
         return out
 
 
-def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPattern:
+def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int = BLOCK) -> HessianPattern:
     """Compute the block sparsity of H and the per-edge scatter maps.
 
     Parameters
@@ -93,8 +99,10 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         Vertex indices ``i`` and ``j`` of each edge (``i != j``).
     held : (n,) bool array
         Vertices held constant (fixed vertices and gauge anchors); they get no variables.
+    block_size : int
+        Tangent dimension ``d`` of the graph's group (``graph.group.dim``): the size of each block.
     """
-    n = int(num_vertices)
+    n, d = int(num_vertices), int(block_size)
     ei = np.asarray(edge_from, dtype=np.int64)
     ej = np.asarray(edge_to, dtype=np.int64)
     held = np.asarray(held, dtype=bool)
@@ -102,107 +110,135 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held) -> HessianPatte
         raise ValueError(f"held must have shape ({n},), got {held.shape}")
     if np.any(ei == ej):
         raise ValueError("edges joining a vertex to itself are not supported")
-    m = ei.shape[0]
-
     variable_of = np.full(n, -1, dtype=np.int64)
-    free = ~held
-    p = int(np.count_nonzero(free))
-    variable_of[free] = np.arange(p)
+    p = int(np.count_nonzero(~held))
+    variable_of[~held] = np.arange(p)
     ci, cj = variable_of[ei], variable_of[ej]
-
-    # --- block pattern (lower triangle): unique (block row, block col) pairs with row > col.
-    both = (ci >= 0) & (cj >= 0)
-    brow = np.maximum(ci[both], cj[both])
-    bcol = np.minimum(ci[both], cj[both])
-    stride = max(p, 1)
-    # sorted by column, then row; sort + mask rather than np.unique, which (numpy 2.4) imports
-    # numpy.ma to check for a masked array: 7 ms of every run
-    key = np.sort(bcol * stride + brow)
-    key = key[np.concatenate((key[:1] == key[:1], key[1:] != key[:-1]))]
-    off_col, off_row = key // stride, key % stride
-    off_per_col = np.bincount(off_col, minlength=p)
-    # start of each block column's off-diagonal blocks in the sorted key list
-    off_start = np.concatenate(([0], np.cumsum(off_per_col)))[:-1]
-
-    # --- scalar CSC layout. Column 6c+q holds (6-q) diagonal-block rows then 6 rows per off-diagonal block.
-    q = np.arange(BLOCK)
-    col_len = (BLOCK - q)[None, :] + BLOCK * off_per_col[:, None]  # (p, 6)
-    indptr = np.concatenate(([0], np.cumsum(col_len.ravel()))).astype(np.int64)
-    nnz = int(indptr[-1])
-    if nnz > np.iinfo(np.int32).max:
-        raise ValueError("system too large for 32-bit sparse indices")
-    column_start = indptr[:-1].reshape(p, BLOCK)  # data position where column 6c+q begins
-
-    # Entry (row a, col b) of a 6×6 block, as index a·6+b of its row-major ravel: the 21 stored
-    # entries of a diagonal block (a >= b), and all 36 of an off-diagonal one.
-    pp, qq = np.meshgrid(q, q, indexing="ij")
-    lower = (pp >= qq).ravel()
-    low_row, low_col = pp.ravel()[lower], qq.ravel()[lower]
-    full_row, full_col = pp.ravel(), qq.ravel()
-    transpose = (full_col * BLOCK + full_row)  # entry (a, b) of Bᵀ is entry (b, a) of B
-    # Data positions, one row per block: diagonal block of variable c (21 entries: its column 6c+b
-    # starts with row 6c+b), and the s-th off-diagonal block of block column c (36 entries: column
-    # 6c+b holds it after its 6−b diagonal-block rows, at 6·s + a).
-    diagonal_slots = column_start[:, low_col] + (low_row - low_col)  # (p, 21)
-    rank = np.arange(key.size) - off_start[off_col]  # s
-    off_slots = column_start[off_col][:, full_col] + (BLOCK - full_col) + BLOCK * rank[:, None] + full_row  # (k, 36)
-
-    indices = np.empty(nnz, dtype=np.int64)
-    indices[diagonal_slots] = BLOCK * np.arange(p)[:, None] + low_row
-    indices[off_slots] = BLOCK * off_row[:, None] + full_row
-    diagonal = indptr[:-1].copy()  # diagonal entry is first in each column
-    block_indptr = np.concatenate(([0], np.cumsum(1 + off_per_col)))
-    block_indices = np.empty(p + key.size, dtype=np.int32)
-    block_indices[block_indptr[:-1]] = np.arange(p)
-    block_indices[block_indptr[off_col] + 1 + rank] = off_row
-
-    # --- per-edge scatter into data: blocks (m, 3, 6, 6) = [H_ii, H_jj, H_ij], raveled per edge.
-    # Gathered from small tables (one row per variable or stored block, plus a last row of "not
-    # stored" = nnz that index −1 picks), rather than scattered entry by entry.
-    entries = BLOCK * BLOCK
-    diagonal_table = np.full((p + 1, entries), nnz, dtype=np.intp)  # entry (a, b) of variable c's H_cc
-    diagonal_table[:p, np.flatnonzero(lower)] = diagonal_slots
-    positions = np.empty((3, m, entries), dtype=np.intp)
-    positions[0] = diagonal_table[ci]  # H_ii (ci = −1: held, the last row)
-    positions[1] = diagonal_table[cj]  # H_jj
-    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci);
-    # rows k.. of the table are the transposed blocks.
-    k = key.size
-    off_table = np.full((2 * k + 1, entries), nnz, dtype=np.intp)
-    off_table[:k] = off_slots
-    off_table[k : 2 * k] = off_slots[:, transpose]
-    which_block = np.full(m, 2 * k, dtype=np.intp)
-    if np.any(both):
-        a, b = ci[both], cj[both]
-        which_block[both] = np.searchsorted(key, np.minimum(a, b) * stride + np.maximum(a, b)) + k * (a < b)
-    positions[2] = off_table[which_block]
-    hessian_positions = positions.reshape(3, -1)
-
-    # --- gradient scatter: grads (m, 2, 6) = [g_i, g_j]
-    gradient_table = np.full((p + 1, BLOCK), BLOCK * p, dtype=np.intp)
-    gradient_table[:p] = BLOCK * np.arange(p)[:, None] + q[None, :]
+    blocks = _block_pattern(ci, cj, p)
+    layout = _scalar_layout(blocks, p, d)
+    hessian_positions = _hessian_positions(ci, cj, blocks, layout, p, d)
+    gradient_table = np.full((p + 1, d), d * p, dtype=np.intp)  # row of g of entry q of vertex c
+    gradient_table[:p] = d * np.arange(p)[:, None] + np.arange(d)[None, :]
     gradient_positions = np.stack([gradient_table[ci], gradient_table[cj]], axis=1).reshape(-1)
-
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,
         num_variables=p,
-        indptr=indptr.astype(np.int32),
-        indices=indices.astype(np.int32),
-        diagonal=diagonal,
-        block_indptr=block_indptr.astype(np.int32),
-        block_indices=block_indices,
-        entry_columns=np.repeat(np.arange(BLOCK * p, dtype=np.int32), np.diff(indptr)),
+        indptr=layout.indptr.astype(np.int32),
+        indices=layout.indices.astype(np.int32),
+        diagonal=layout.indptr[:-1].copy(),  # the diagonal entry is first in each column
+        block_indptr=blocks.indptr.astype(np.int32),
+        block_indices=blocks.indices,
+        entry_columns=np.repeat(np.arange(d * p, dtype=np.int32), np.diff(layout.indptr)),
         hessian_positions=hessian_positions,
         gradient_positions=gradient_positions,
+        block_size=d,
     )
+
+
+@dataclass(frozen=True)
+class _Blocks:
+    """The lower triangle of the p×p vertex pattern (:func:`_block_pattern`)."""
+
+    key: np.ndarray  # (k,) sorted ``col·stride + row`` of each stored off-diagonal block, row > col
+    stride: int
+    col: np.ndarray  # (k,) block column of each off-diagonal block
+    row: np.ndarray  # (k,) block row
+    rank: np.ndarray  # (k,) position s of the block among the off-diagonal blocks of its column
+    per_column: np.ndarray  # (p,) number of off-diagonal blocks per block column
+    indptr: np.ndarray  # (p + 1,) CSC pointers of the vertex pattern, diagonal included
+    indices: np.ndarray  # (p + k,) int32 rows, diagonal first in each column
+
+
+def _block_pattern(ci: np.ndarray, cj: np.ndarray, p: int) -> _Blocks:
+    """Unique (block row, block column) pairs with row > col over the edges joining two free vertices."""
+    both = (ci >= 0) & (cj >= 0)
+    stride = max(p, 1)
+    # sorted by column, then row; sort + mask rather than np.unique, which (numpy 2.4) imports
+    # numpy.ma to check for a masked array: 7 ms of every run
+    key = np.sort(np.minimum(ci[both], cj[both]) * stride + np.maximum(ci[both], cj[both]))
+    key = key[np.concatenate((key[:1] == key[:1], key[1:] != key[:-1]))]
+    col, row = key // stride, key % stride
+    per_column = np.bincount(col, minlength=p)
+    first = np.concatenate(([0], np.cumsum(per_column)))[:-1]  # each column's first block in `key`
+    rank = np.arange(key.size) - first[col]
+    indptr = np.concatenate(([0], np.cumsum(1 + per_column)))
+    indices = np.empty(p + key.size, dtype=np.int32)
+    indices[indptr[:-1]] = np.arange(p)
+    indices[indptr[col] + 1 + rank] = row
+    return _Blocks(key, stride, col, row, rank, per_column, indptr, indices)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """The scalar CSC layout of the lower triangle (:func:`_scalar_layout`)."""
+
+    indptr: np.ndarray  # (dp + 1,) int64
+    indices: np.ndarray  # (nnz,) int64
+    diagonal_slots: np.ndarray  # (p, d(d+1)/2) data positions of the stored entries of each H_cc
+    off_slots: np.ndarray  # (k, d²) data positions of the entries of each off-diagonal block
+    lower: np.ndarray  # (d²,) bool: entry a·d + b of a block is on or below its diagonal
+
+
+def _scalar_layout(blocks: _Blocks, p: int, d: int) -> _Layout:
+    """CSC pointers and rows of the lower triangle, and where each block's entries sit in ``data``.
+
+    Column ``d·c + q`` holds ``d − q`` rows of the diagonal block, then ``d`` rows per off-diagonal
+    block of block column ``c``. Entry ``(a, b)`` of a block is index ``a·d + b`` of its row-major ravel.
+    """
+    q = np.arange(d)
+    col_len = (d - q)[None, :] + d * blocks.per_column[:, None]  # (p, d)
+    indptr = np.concatenate(([0], np.cumsum(col_len.ravel()))).astype(np.int64)
+    nnz = int(indptr[-1])
+    if nnz > np.iinfo(np.int32).max:
+        raise ValueError("system too large for 32-bit sparse indices")
+    column_start = indptr[:-1].reshape(p, d)  # data position where column d·c+q begins
+    rows, cols = (grid.ravel() for grid in np.meshgrid(q, q, indexing="ij"))
+    lower = rows >= cols
+    low_row, low_col = rows[lower], cols[lower]
+    # diagonal block of variable c: its column d·c+b starts with row d·c+b; the s-th off-diagonal
+    # block of block column c: column d·c+b holds it after its d−b diagonal-block rows, at d·s + a
+    diagonal_slots = column_start[:, low_col] + (low_row - low_col)
+    off_slots = column_start[blocks.col][:, cols] + (d - cols) + d * blocks.rank[:, None] + rows
+    indices = np.empty(nnz, dtype=np.int64)
+    indices[diagonal_slots] = d * np.arange(p)[:, None] + low_row
+    indices[off_slots] = d * blocks.row[:, None] + rows
+    return _Layout(indptr, indices, diagonal_slots, off_slots, lower)
+
+
+def _hessian_positions(ci, cj, blocks: _Blocks, layout: _Layout, p: int, d: int) -> np.ndarray:
+    """``(3, d²·m)`` data positions of every entry of every edge's ``H_ii``, ``H_jj``, ``H_ij``.
+
+    Gathered from small tables (one row per variable or stored block, plus a last row of "not
+    stored" = nnz that index −1 picks), rather than scattered entry by entry.
+    """
+    nnz, entries, m = int(layout.indptr[-1]), d * d, ci.shape[0]
+    diagonal_table = np.full((p + 1, entries), nnz, dtype=np.intp)  # entry (a, b) of variable c's H_cc
+    diagonal_table[:p, np.flatnonzero(layout.lower)] = layout.diagonal_slots
+    positions = np.empty((3, m, entries), dtype=np.intp)
+    positions[0] = diagonal_table[ci]  # H_ii (ci = −1: held, the last row)
+    positions[1] = diagonal_table[cj]  # H_jj
+    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci);
+    # rows k.. of the table are the transposed blocks (entry (a, b) of Bᵀ is entry (b, a) of B).
+    k = blocks.key.size
+    transpose = np.arange(entries).reshape(d, d).T.ravel()
+    off_table = np.full((2 * k + 1, entries), nnz, dtype=np.intp)
+    off_table[:k] = layout.off_slots
+    off_table[k : 2 * k] = layout.off_slots[:, transpose]
+    which_block = np.full(m, 2 * k, dtype=np.intp)
+    both = (ci >= 0) & (cj >= 0)
+    if np.any(both):
+        a, b = ci[both], cj[both]
+        which_block[both] = np.searchsorted(blocks.key, np.minimum(a, b) * blocks.stride + np.maximum(a, b)) + k * (a < b)
+    positions[2] = off_table[which_block]
+    return positions.reshape(3, -1)
 
 
 def hessian_values(pattern: HessianPattern, blocks) -> np.ndarray:
     """CSC ``data`` of the lower triangle of H from the per-edge blocks ``[H_ii, H_jj, H_ij]``.
 
-    ``blocks`` is a sequence of three ``(m, 6, 6)`` arrays (what :func:`posegraph.solve.linearize.linearize`
-    returns, no stacking copy needed) or one ``(m, 3, 6, 6)`` array. ``H_ij = A_iᵀ Ω A_j`` is the
+    ``blocks`` is a sequence of three ``(m, d, d)`` arrays (what :func:`posegraph.solve.linearize.linearize`
+    returns, no stacking copy needed) or one ``(m, 3, d, d)`` array. ``H_ij = A_iᵀ Ω A_j`` is the
     block at (block row of ``i``, block column of ``j``).
     """
     if isinstance(blocks, np.ndarray):
@@ -215,14 +251,14 @@ def hessian_values(pattern: HessianPattern, blocks) -> np.ndarray:
 
 
 def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:
-    """``(6p,)`` gradient ``g = Σ Jᵀ Ω e`` from per-edge ``(m, 2, 6)`` = ``[A_iᵀ Ω e, A_jᵀ Ω e]``."""
+    """``(dp,)`` gradient ``g = Σ Jᵀ Ω e`` from per-edge ``(m, 2, d)`` = ``[A_iᵀ Ω e, A_jᵀ Ω e]``."""
     weights = np.ascontiguousarray(grads, dtype=np.float64).ravel()
     d = pattern.dimension
     return np.bincount(pattern.gradient_positions, weights=weights, minlength=d + 1)[:d]
 
 
 def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(6p,)``."""
+    """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(dp,)``."""
     d = pattern.dimension
     return np.bincount(pattern.indices, weights=data * x[pattern.entry_columns], minlength=d)
 

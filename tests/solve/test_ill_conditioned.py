@@ -25,7 +25,7 @@ import pytest
 
 from posegraph.init import chordal_initialization
 from posegraph.solve import SolverParams, optimize
-from posegraph.solve.optimizer import _backtrack
+from posegraph.solve.trust_region import backtrack as _backtrack
 from tests.init import synthetic
 
 GOAL = 1e-6  # relative distance to the optimum every run must reach
