@@ -263,8 +263,12 @@ cvxopt route and pymetis, ``docs/cholesky.md``."""
 
 
 def auto_ordering(num_vertices: int) -> str:
-    """The ordering ``"auto"`` stands for on a system of ``num_vertices`` free vertices."""
-    return "nesdis" if num_vertices >= NESTED_DISSECTION_VERTICES else "amd"
+    """The ordering ``"auto"`` stands for on a system of ``num_vertices`` free vertices (AMD without pymetis)."""
+    if num_vertices < NESTED_DISSECTION_VERTICES:
+        return "amd"
+    import importlib.util
+
+    return "nesdis" if importlib.util.find_spec("pymetis") is not None else "amd"
 
 
 def _adjacency(indptr, indices, n: int) -> tuple[np.ndarray, np.ndarray]:
