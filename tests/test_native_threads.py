@@ -46,6 +46,7 @@ class FakeController:
 def test_one_thread_inside_and_the_previous_setting_after(monkeypatch):
     fake = FakeController()
     monkeypatch.setattr(native_threads, "_CONTROLLER", [fake])
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     threads = NativeThreads(1)
     assert threads.active
     with threads:
@@ -56,6 +57,17 @@ def test_one_thread_inside_and_the_previous_setting_after(monkeypatch):
             raise KeyError("inside")
     assert fake.threads == 4
     assert not NativeThreads(None).active  # None changes nothing
+
+
+def test_one_thread_set_in_the_environment_needs_no_control(monkeypatch):
+    fake = FakeController()
+    monkeypatch.setattr(native_threads, "_CONTROLLER", [fake])
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    assert not NativeThreads(1).active
+    two = NativeThreads(2)  # more than the environment says: controlled
+    with two:
+        assert fake.threads == 2
+    assert fake.threads == 4
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2"])
