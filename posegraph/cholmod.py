@@ -18,7 +18,7 @@ and expanded to the blocks (:func:`block_permutation`): AMD (``cvxopt.amd``) or 
 CHOLMOD then postorders the given permutation along its elimination tree (``options['postorder']``)
 and takes it as given (``options['nmethods'] = 1``; cvxopt's default 0 would also run CHOLMOD's
 AMD on the scalar pattern and keep the better of the two, which costs a second ordering per
-analysis: on the 50k-pose sphere 0.97 s of analysis against 0.6 s, ``docs/cholesky.md``).
+analysis: on the 50k-pose sphere 1.9–2.2 s of analysis against 1.3–1.5 s, ``docs/cholesky.md``).
 
 Licences: cvxopt is GPL-3; CHOLMOD's Supernodal module is GPL-2+ (the rest LGPL-2.1+); pymetis
 is MIT, METIS Apache-2.0.
