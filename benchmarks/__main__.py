@@ -27,6 +27,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--timeout", type=float, default=900, help="seconds before one process is killed (default 900)")
     parser.add_argument("--startup-runs", type=int, default=10, help="runs of each start-up measurement (0: skip)")
     parser.add_argument("--out", default="docs", help="folder for benchmark_results.json/.md (default docs/)")
+    parser.add_argument("--fresh-venv", metavar="DIR", default=None,
+                        help="make a new virtual environment in DIR by the README's `pip install .` (plus gtsam) and run both tools from it")
     parser.add_argument("--synthetic-dir", default=None, help="where synthetic sets are generated (default: a temporary folder)")
     return parser
 
@@ -50,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
             datasets = [d for d in datasets if any(word in d.name for word in args.only)]
         if not datasets:
             parser.error("no datasets to run")
+        if args.fresh_venv:
+            harness.use_environment(harness.fresh_environment(Path(args.fresh_venv)))
         result = harness.run_benchmark(
             datasets, tools=args.tools, repeats=args.repeats, warmup=args.warmup, timeout=args.timeout, startup_runs=args.startup_runs
         )

@@ -17,6 +17,12 @@ from round to round so that a slow spell of a shared machine hits both. Figures 
 the rounds. ``other`` is the part of the wall time outside the reported phases (interpreter
 start, imports, argument checks, cost evaluations and reports, process exit).
 
+With ``--fresh-venv DIR`` (:func:`fresh_environment`) both tools run from a new virtual
+environment made as a new user makes one: ``python -m venv DIR``, then the README's set-up command
+``pip install .`` in the project root and ``pip install gtsam`` for the comparison; ours then runs
+as the installed ``posegraph`` command. The published ratios are then the ones a user gets on a
+machine with nothing installed by hand.
+
 Run ``python -m benchmarks --help`` for the command line; :func:`run_benchmark` is the API.
 """
 
@@ -114,6 +120,46 @@ def run_process(command: list[str], timeout: float | None = None, cwd: Path = RO
 # Tools
 
 
+@dataclass
+class Environment:
+    """The Python environment the tools run in."""
+
+    python: str = sys.executable
+    """Interpreter for gtsam's pipeline and the start-up measurements."""
+    posegraph: list[str] | None = None
+    """The installed ``posegraph`` command, or None to run ``cli.py`` of this checkout with :attr:`python`."""
+    venv: str | None = None
+    """The fresh virtual environment's folder (None: the current environment)."""
+
+
+ENVIRONMENT = Environment()
+"""Where :func:`tool_command` runs the tools; replaced by :func:`use_environment`."""
+
+
+def use_environment(environment: Environment) -> None:
+    """Run the tools (and the start-up and environment measurements) in ``environment`` from now on."""
+    global ENVIRONMENT
+    ENVIRONMENT = environment
+
+
+def fresh_environment(folder: Path, log=print) -> Environment:
+    """A new virtual environment in ``folder`` set up by the README's command, plus gtsam.
+
+    ``python -m venv folder``, ``pip install .`` (run in the project root) and ``pip install
+    gtsam``; nothing else, so the solver backend is whatever a new user's ``pip install`` gives.
+    """
+    folder = Path(folder).resolve()
+    if folder.exists():
+        raise FileExistsError(f"{folder} exists; --fresh-venv wants a new folder")
+    bin_dir = folder / ("Scripts" if os.name == "nt" else "bin")
+    python = str(bin_dir / "python")
+    log(f"fresh environment: python -m venv {folder}; pip install . ; pip install gtsam")
+    for command in ([sys.executable, "-m", "venv", str(folder)], [python, "-m", "pip", "install", "-q", "."],
+                    [python, "-m", "pip", "install", "-q", "gtsam"]):  # fmt: skip
+        subprocess.run(command, cwd=ROOT, check=True)
+    return Environment(python=python, posegraph=[str(bin_dir / "posegraph")], venv=str(folder))
+
+
 def tool_command(tool: str, source: Path, output: Path, report: Path) -> list[str]:
     """The command line of one tool's run.
 
@@ -124,12 +170,12 @@ def tool_command(tool: str, source: Path, output: Path, report: Path) -> list[st
     they are); on a file whose matrices are all positive semi-definite it changes nothing.
     """
     if tool == "posegraph":
-        return [sys.executable, "-c", _RUN_MAIN.format(folder=str(ROOT), module="cli", main="main"),
-                "optimize", str(source), "-o", str(output), "--quiet", "--report", str(report),
+        command = ENVIRONMENT.posegraph or [ENVIRONMENT.python, "-c", _RUN_MAIN.format(folder=str(ROOT), module="cli", main="main")]
+        return [*command, "optimize", str(source), "-o", str(output), "--quiet", "--report", str(report),
                 "--repair-information"]  # fmt: skip
     if tool in ("gtsam-lm", "gtsam-gn"):
         method = tool.split("-")[1]
-        return [sys.executable, "-c", _RUN_MAIN.format(folder=str(GTSAM_PIPELINE.parent), module="gtsam_pipeline", main="_main"),
+        return [ENVIRONMENT.python, "-c", _RUN_MAIN.format(folder=str(GTSAM_PIPELINE.parent), module="gtsam_pipeline", main="_main"),
                 str(source), "-o", str(output), "--report", str(report), "--method", method]  # fmt: skip
     raise ValueError(f"unknown tool {tool!r}; one of {TOOLS}")
 
@@ -429,10 +475,11 @@ def benchmark_dataset(dataset: Dataset, tools=TOOLS, repeats: int = 5, warmup: i
 
 def measure_startup(runs: int = 10) -> dict:
     """Median whole-process seconds of ``python -c pass``, ``import posegraph``, ``cli.py --help``."""
+    python = ENVIRONMENT.python
     commands = {
-        "python -c pass": [sys.executable, "-c", "pass"],
-        "import posegraph": [sys.executable, "-c", "import posegraph"],
-        "cli.py --help": [sys.executable, str(ROOT / "cli.py"), "--help"],
+        "python -c pass": [python, "-c", "pass"],
+        "import posegraph": [python, "-c", "import posegraph"],
+        "cli.py --help": [*ENVIRONMENT.posegraph, "--help"] if ENVIRONMENT.posegraph else [python, str(ROOT / "cli.py"), "--help"],
     }
     out = {}
     for name, command in commands.items():
@@ -472,26 +519,50 @@ def machine_info() -> dict:
         info["load_average"] = Path("/proc/loadavg").read_text().split()[:3]
     except OSError:
         pass
-    for package in ("numpy", "scipy", "scikit-sparse", "gtsam"):
-        try:
-            info[package] = version(package)
-        except PackageNotFoundError:
-            info[package] = None
-    try:
-        import numpy
-
-        blas = numpy.show_config(mode="dicts")["Build Dependencies"]["blas"]
-        info["numpy_blas"] = f"{blas.get('name')} {blas.get('version')}"
-    except Exception:  # noqa: BLE001 - the BLAS description is informative only
-        info["numpy_blas"] = None
-    try:
-        import sksparse.cholmod as cholmod
-
-        info["cholmod_blas"] = _linked_blas(cholmod.__file__)
-    except ImportError:
-        info["cholmod_blas"] = None
+    info.update(environment_info())
     info["git"] = git_state()
     info["threads"] = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ}
+    return info
+
+
+_ENVIRONMENT_PROBE = """
+import json, sys
+from importlib.metadata import PackageNotFoundError, version
+out = {"python": sys.version.split()[0]}
+for package in ("numpy", "scipy", "cvxopt", "pymetis", "threadpoolctl", "gtsam"):
+    try:
+        out[package] = version(package)
+    except PackageNotFoundError:
+        out[package] = None
+import numpy
+try:
+    blas = numpy.show_config(mode="dicts")["Build Dependencies"]["blas"]
+    out["numpy_blas"] = f"{blas.get('name')} {blas.get('version')}"
+except Exception:
+    out["numpy_blas"] = None
+from posegraph import cholmod
+out["cholmod"] = "cvxopt" if cholmod.load() is not None else f"unavailable: {cholmod.unavailable_reason()}"
+if cholmod.load() is not None:
+    import threadpoolctl
+    out["cholmod_blas"] = [f"{i.get('internal_api')} {i.get('version')} ({i.get('threading_layer')})"
+                           for i in threadpoolctl.threadpool_info() if "cvxopt" in i.get("filepath", "")]
+    cholmod.SparseCholesky([0, 1], [0], 1).factorize([2.0])
+maps = open("/proc/self/maps").read() if sys.platform == "linux" else ""
+out["system_cholmod_loaded"] = sorted({l.split()[-1] for l in maps.splitlines() if "libcholmod" in l and "cvxopt" not in l})
+print(json.dumps(out))
+"""
+"""Run in the tools' interpreter: package versions, the CHOLMOD backend, its BLAS, and any
+SuiteSparse library from the system mapped into a process that has used CHOLMOD."""
+
+
+def environment_info() -> dict:
+    """:data:`_ENVIRONMENT_PROBE`'s answer from :data:`ENVIRONMENT` (run outside this checkout when installed)."""
+    cwd = Path(tempfile.gettempdir()) if ENVIRONMENT.posegraph else ROOT
+    proc = subprocess.run([ENVIRONMENT.python, "-c", _ENVIRONMENT_PROBE], capture_output=True, text=True, cwd=cwd, timeout=120)
+    if proc.returncode:
+        return {"environment_error": (proc.stderr.strip().splitlines() or ["?"])[-1]}
+    info = json.loads(proc.stdout)
+    info["venv"] = ENVIRONMENT.venv
     return info
 
 
@@ -503,18 +574,6 @@ def git_state() -> str | None:
     except (OSError, subprocess.SubprocessError):
         return None
     return f"{commit}{' + uncommitted changes' if dirty else ''}" if commit else None
-
-
-def _linked_blas(library: str) -> str | None:
-    """The BLAS a shared library resolves to (``ldd``, following Debian's alternatives link)."""
-    try:
-        text = subprocess.run(["ldd", library], capture_output=True, text=True, timeout=10).stdout
-    except (OSError, subprocess.SubprocessError):
-        return None
-    for line in text.splitlines():
-        if "libblas.so" in line and "=>" in line:
-            return os.path.realpath(line.split("=>")[1].split("(")[0].strip())
-    return None
 
 
 def run_benchmark(
@@ -529,7 +588,8 @@ def run_benchmark(
     """Benchmark every dataset; returns the full result (what is written as JSON)."""
     started = time.time()
     info = machine_info()
-    compile_bytecode()
+    if ENVIRONMENT.posegraph is None:
+        compile_bytecode()  # pip compiled the installed copy
     results = []
     for dataset in datasets:
         log(f"{dataset.name} ({dataset.path})")
@@ -660,7 +720,9 @@ def to_markdown(benchmark: dict) -> str:
         "",
         f"Taken {benchmark['started']} on {m.get('cpu', '?')}, {m.get('cores')} cores, {m.get('memory_gb', '?')} GB; "
         f"Python {m.get('python')}, numpy {m.get('numpy')} (BLAS {m.get('numpy_blas')}), scipy {m.get('scipy')}, "
-        f"scikit-sparse {m.get('scikit-sparse')} (CHOLMOD BLAS {m.get('cholmod_blas')}), gtsam {m.get('gtsam')}. "
+        f"cvxopt {m.get('cvxopt')} (CHOLMOD {m.get('cholmod')}, BLAS {m.get('cholmod_blas')}), pymetis {m.get('pymetis')}, "
+        f"gtsam {m.get('gtsam')}; system SuiteSparse loaded: {m.get('system_cholmod_loaded') or 'none'}"
+        f"{'; fresh venv ' + m['venv'] + ' (pip install . ; pip install gtsam)' if m.get('venv') else ''}. "
         f"Load average at start {' '.join(m.get('load_average') or [])}, at end {' '.join(m.get('load_average_end') or [])}. "
         f"posegraph at git {m.get('git')}.",
         "",

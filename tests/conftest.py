@@ -12,10 +12,8 @@
 * ``gtsam_example_file(name)`` — a fixture returning a function: the path of a
   file bundled with the gtsam wheel (``gtsam.findExampleDataFile``), skipping
   if gtsam is not installed or does not bundle it.
-* ``cholmod_backend`` — parametrised over the two ways to CHOLMOD: ``"direct"`` (the system
-  library through :mod:`posegraph.cholmod`) and ``"scikit-sparse"`` (the direct binding made
-  unavailable for the test, so every ``"cholmod"``/``"auto"`` choice goes through scikit-sparse);
-  each skips, with the reason, when that way is not installed.
+* ``cholmod_backend`` — the way to CHOLMOD (``"cvxopt"``, :mod:`posegraph.cholmod`); skips, with
+  the reason, when cvxopt is not installed.
 * ``text_file(text, name="input.g2o")`` — a fixture returning a function that
   writes ``text`` byte for byte (no newline translation) into the test's
   ``tmp_path`` and returns the path: for malformed fixtures written by tests.
@@ -120,32 +118,12 @@ def text_file(tmp_path):
     return write
 
 
-def _direct_cholmod_reason():
-    from posegraph import cholmod
-
-    return cholmod.unavailable_reason()
-
-
-def _scikit_sparse_missing():
-    try:
-        import sksparse.cholmod  # noqa: F401
-    except Exception as err:  # ImportError, or a broken shared library
-        return f"scikit-sparse does not import: {err}"
-    return None
-
-
-@pytest.fixture(params=["direct", "scikit-sparse"])
-def cholmod_backend(request, monkeypatch):
+@pytest.fixture(params=["cvxopt"])
+def cholmod_backend(request):
     """Which CHOLMOD binding the test runs on (see the module docstring)."""
     from posegraph import cholmod
 
-    if request.param == "direct":
-        reason = _direct_cholmod_reason()
-        if reason is not None:
-            pytest.skip(f"the system CHOLMOD cannot be used directly: {reason}")
-    else:
-        reason = _scikit_sparse_missing()
-        if reason is not None:
-            pytest.skip(reason)
-        monkeypatch.setattr(cholmod, "load", lambda: None)
+    reason = cholmod.unavailable_reason()
+    if reason is not None:
+        pytest.skip(reason)
     return request.param

@@ -115,7 +115,7 @@ def test_dataset_discovery(tmp_path):
 
 def test_scaling_points_table_and_plot(tmp_path):
     """Two tiny scaling points end to end (worker process, fill-in analysis), then the table and the figure."""
-    pytest.importorskip("sksparse")
+    pytest.importorskip("cvxopt")
     pytest.importorskip("matplotlib")
     from benchmarks import scaling
 

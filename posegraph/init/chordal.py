@@ -35,10 +35,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from posegraph.errors import GraphError
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
-from posegraph.init.linear_system import RelativeLeastSquares
+from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
 from posegraph.init.weights import rotation_weights, translation_information
 from posegraph.lie import so3
 
@@ -76,11 +77,19 @@ def chordal_initialization(graph: PoseGraph, *, linear_solver: str = "auto") -> 
 
     Fixed vertices and component anchors keep their file pose exactly. Works for any number of
     components, duplicate edges, degree-one vertices and information spanning many decades.
+    Raises :class:`~posegraph.errors.GraphError` when the linear systems cannot be solved to
+    working precision (no backend factorises them, or the solution overflows).
     """
     require_usable(graph)
     problem = _problem(graph, linear_solver)  # both stages share its sparsity analysis
-    rotations = _rotations(graph, problem)
-    translations = _translations(graph, rotations, problem)
+    try:
+        rotations = _rotations(graph, problem)
+        translations = _translations(graph, rotations, problem)
+    except NotPositiveDefiniteError as err:
+        raise GraphError(
+            f"the chordal initialisation failed numerically ({err}); the information matrices may span too "
+            "many decades: try the odometry initialisation", graph.source,
+        ) from err  # fmt: skip
     poses = np.zeros((graph.num_vertices, 4, 4))
     poses[:, :3, :3] = rotations
     poses[:, :3, 3] = translations

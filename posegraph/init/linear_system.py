@@ -24,30 +24,22 @@ analyses it once — the CSC pattern, where each per-edge block entry lands in i
 symbolic factorisation — and each :meth:`~RelativeLeastSquares.solve` only refills the values
 (the rotation and translation stages share one analysis).
 
-This module depends on :mod:`posegraph.cholmod` and :mod:`posegraph.native_threads` (scipy and
-scikit-sparse only on their fallback paths), not on :mod:`posegraph.solve`: initialisation comes
-before the solver in the data flow.
+This module depends on :mod:`posegraph.cholmod` (scipy only on the SuperLU path), not on
+:mod:`posegraph.solve`: initialisation comes before the solver in the data flow. Every numerical
+failure of either backend (a matrix not positive definite to working precision, an overflow)
+raises :class:`~posegraph.cholmod.NotPositiveDefiniteError`.
 """
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from posegraph import cholmod as cholmod_library
-from posegraph.native_threads import NativeThreads
+from posegraph.cholmod import NotPositiveDefiniteError
 
-__all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS"]
+__all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
 LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
-
-SMALL_SYSTEM = 1000
-"""Without the direct CHOLMOD binding (:mod:`posegraph.cholmod`), ``"auto"`` uses SuperLU below
-this many unknowns: there scikit-sparse's fixed cost per factorisation
-(~3–5 ms here) outweighs CHOLMOD's faster supernodal kernels (smallGrid3D, 372 unknowns: 5 ms with
-SuperLU, 9 ms with CHOLMOD, whole chordal initialisation, best of 10; parking-garage, 4980
-unknowns: 77 ms with CHOLMOD, 118 ms with SuperLU)."""
 
 _AXIS = np.arange(3)
 
@@ -60,20 +52,16 @@ class RelativeLeastSquares:
     held : (n,) bool — vertices whose block is given, not solved for.
     edge_from, edge_to : (m,) int — vertex indices ``i``, ``j`` of each edge.
     linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"``.
-        ``"cholmod"``: CHOLMOD (supernodal Cholesky, AMD ordering, symbolic analysis kept
-        between solves), through :mod:`posegraph.cholmod` or else scikit-sparse; ``"scipy"``:
-        SuperLU in symmetric mode (minimum-degree ordering on AᵀA+A, no off-diagonal pivoting —
-        on an SPD matrix that is Cholesky in disguise), needing nothing beyond scipy; ``"auto"``:
-        CHOLMOD through :mod:`posegraph.cholmod` when it loads, else through scikit-sparse for
-        systems of at least :data:`SMALL_SYSTEM` unknowns, else SuperLU — and SuperLU too when
-        CHOLMOD reports the matrix as not positive definite (it can, at round-off level, when
-        the weights span many decades) or returns non-finite numbers.
+        ``"cholmod"``: CHOLMOD from cvxopt (:func:`posegraph.cholmod.block_cholesky`: supernodal
+        Cholesky, the vertex graph ordered as in the solver, symbolic analysis kept between
+        solves); ``"scipy"``: SuperLU in symmetric mode (minimum-degree ordering on AᵀA+A, no
+        off-diagonal pivoting — on an SPD matrix that is Cholesky in disguise), needing nothing
+        beyond scipy; ``"auto"``: CHOLMOD when cvxopt imports, else SuperLU — and SuperLU too
+        when CHOLMOD reports the matrix as not positive definite (it can, at round-off level,
+        when the weights span many decades).
     threads : int or None, default 1
-        Threads of the system OpenBLAS and OpenMP under CHOLMOD during its work
-        (:class:`posegraph.native_threads.NativeThreads`; None leaves them as they are). One, as in
-        the solver: CHOLMOD's four OpenMP threads per loop cost more than they give on a shared
-        2-core machine (the chordal start of torus3D: 0.120 s with them, 0.102 s without; sphere2500
-        0.055 s and 0.046 s).
+        Threads of the BLAS under CHOLMOD during its work
+        (:class:`posegraph.native_threads.NativeThreads`; None leaves it as it is).
     """
 
     def __init__(
@@ -101,8 +89,7 @@ class RelativeLeastSquares:
         i, j = self.edge_from, self.edge_to
         self.free_from, self.free_to = free[i], free[j]
         self.both_free = self.free_from & self.free_to
-        self._symbolic = None  # CHOLMOD analysis (either binding), made at the first factorisation
-        self._threads = None  # NativeThreads, made at the first factorisation
+        self._cholesky = None  # CHOLMOD's analysis, made at the first factorisation
         self._analyse_pattern()
 
     def _analyse_pattern(self) -> None:
@@ -208,74 +195,56 @@ class RelativeLeastSquares:
         return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
 
     def _factorize(self, data: np.ndarray):
-        """``solve(rhs) -> x`` for the matrix with CSC ``data``, by the backend chosen at construction."""
-        if self.linear_solver == "scipy":
-            return _superlu_solver(self._csc(data))
-        direct = cholmod_library.load() is not None
-        small = self.linear_solver == "auto" and 3 * self.num_free < SMALL_SYSTEM and not direct
-        if not small:
-            factor = self._cholmod_factor(data, direct)
-            if factor is not None:
-                fallback = []
+        """``solve(rhs) -> x`` for the matrix with CSC ``data``, by the backend chosen at construction.
 
-                def solve(rhs: np.ndarray) -> np.ndarray:
-                    if not fallback:
-                        with self._native_threads():
-                            solution = factor(rhs)
-                        if self.linear_solver == "cholmod" or np.all(np.isfinite(solution)):
-                            return solution
-                        fallback.append(_superlu_solver(self._csc(data)))
-                    return fallback[0](rhs)
+        Raises :class:`NotPositiveDefiniteError` when no backend factorises it, or its solution is not finite.
+        """
+        solve = None
+        if self.linear_solver != "scipy":
+            if cholmod_library.load() is None and self.linear_solver == "cholmod":
+                raise ImportError(f"linear_solver='cholmod': {cholmod_library.unavailable_reason()}")
+            if cholmod_library.load() is not None:
+                solve = self._cholmod_solve(data)
+        if solve is None:
+            solve = _superlu_solver(self._csc(data))
 
-                return solve
-        return _superlu_solver(self._csc(data))
+        def finite_solve(rhs: np.ndarray) -> np.ndarray:
+            solution = solve(rhs)
+            if not np.isfinite(solution).all():
+                raise NotPositiveDefiniteError("the solution of the relative least-squares problem is not finite")
+            return solution
 
-    def _native_threads(self) -> NativeThreads:
-        """The thread setting for scikit-sparse's CHOLMOD calls, made once (after ``sksparse`` has been imported)."""
-        if self._threads is None:
-            self._threads = NativeThreads(self.threads)
-        return self._threads
+        return finite_solve
 
-    def _cholmod_factor(self, data: np.ndarray, direct: bool):
-        """CHOLMOD's factor of the matrix (callable), or None when unavailable or not positive definite."""
-        required = self.linear_solver == "cholmod"
-        if direct:
-            if self._symbolic is None:
-                self._symbolic = cholmod_library.block_cholesky(
-                    self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, 3,
-                    threads=self.threads,
-                )  # fmt: skip
-                self._threads = NativeThreads(None)  # the binding sets the threads itself
-            try:
-                self._symbolic.factorize(data)
-            except cholmod_library.NotPositiveDefiniteError:
-                if required:
-                    raise
-                return None
-            return self._symbolic.solve
+    def _cholmod_solve(self, data: np.ndarray):
+        """CHOLMOD's solve for the matrix (analysed at the first call), or None when it is not
+        positive definite and ``"auto"`` may fall back to SuperLU."""
+        if self._cholesky is None:
+            self._cholesky = cholmod_library.block_cholesky(
+                self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, 3,
+                threads=self.threads,
+            )  # fmt: skip
         try:
-            from sksparse.cholmod import CholmodError, CholmodTypeConversionWarning, CholmodWarning, analyze
-        except ImportError:
-            if required:
+            self._cholesky.factorize(data)
+        except NotPositiveDefiniteError:
+            if self.linear_solver == "cholmod":
                 raise
             return None
-        matrix = self._csc(data)
-        try:
-            with warnings.catch_warnings(), self._native_threads():
-                # CHOLMOD warns (rather than raises) on some tiny pivots: treat that as a failure.
-                warnings.simplefilter("error", CholmodWarning)
-                warnings.simplefilter("ignore", CholmodTypeConversionWarning)
-                if self._symbolic is None:
-                    self._symbolic = analyze(matrix, ordering_method="amd")
-                return self._symbolic.cholesky(matrix)
-        except (CholmodError, CholmodWarning):
-            if required:
-                raise
-            return None
+        return self._cholesky.solve
 
 
 def _superlu_solver(matrix):
+    """``solve(rhs)`` by SuperLU without off-diagonal pivoting; :class:`NotPositiveDefiniteError` when
+    it fails or a pivot is not finite and positive (U's diagonal is D of ``L D Lᵀ``)."""
     from scipy.sparse.linalg import splu
 
-    factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    if not np.isfinite(matrix.data).all():
+        raise NotPositiveDefiniteError("matrix has non-finite entries")
+    try:
+        factor = splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    except RuntimeError as err:  # "Factor is exactly singular"
+        raise NotPositiveDefiniteError(f"SuperLU: {err}") from err
+    pivots = factor.U.diagonal()
+    if not (np.isfinite(pivots).all() and (pivots > 0).all()):
+        raise NotPositiveDefiniteError("SuperLU: a pivot is not finite and positive: matrix not positive definite")
     return lambda rhs: factor.solve(np.asarray(rhs, dtype=np.float64))

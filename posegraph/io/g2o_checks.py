@@ -26,6 +26,10 @@ SINGULAR_TOLERANCE = 1e-12
 """Information with ``λ_min ≤ SINGULAR_TOLERANCE · max|λ|`` is singular: accepted with a warning."""
 REPAIR_EIGENVALUE_FLOOR = 1e-9
 """With ``repair_information=True``, a non-PSD matrix's eigenvalues are raised to at least this times its largest."""
+MAX_MAGNITUDE = 1e50
+"""Numbers above this in magnitude are refused: the cost multiplies an information entry by two
+residual entries and the Hessian one by two Jacobian entries (≤ 1e150), and the Cholesky
+factorisation squares those (≤ 1e300, below double precision's ~1.8e308)."""
 
 
 def raise_first(errors: list[InputError | None]) -> None:
@@ -59,19 +63,20 @@ def check_negative_ids(ids: np.ndarray, numbers: np.ndarray, tag: str, path: str
 def check_finite(
     records: np.ndarray, numbers: np.ndarray, tag: str, fields: tuple[str, ...], path: str
 ) -> G2oFormatError | None:
-    """An error naming the first line and field holding NaN or an infinity."""
+    """An error naming the first line and field holding NaN, an infinity or a number above :data:`MAX_MAGNITUDE`."""
     names = [name for name in records.dtype.names if records.dtype[name].base.kind == "f"]
     widths = [int(np.prod(records.dtype[name].shape)) for name in names]
     values = np.concatenate([records[name].reshape(len(records), w) for name, w in zip(names, widths)], axis=1)
-    finite = np.isfinite(values)
+    finite = np.abs(values) <= MAX_MAGNITUDE  # False for NaN too
     bad_rows = np.flatnonzero(~finite.all(axis=1))
     if bad_rows.size == 0:
         return None
     row = bad_rows[0]
     col = int(np.flatnonzero(~finite[row])[0])
     field = len(fields) - values.shape[1] + col  # the float fields come after the integer ids
+    bound = "finite" if not np.isfinite(values[row, col]) else f"at most {MAX_MAGNITUDE:g} in magnitude (the solver squares products of them)"
     return G2oFormatError(
-        f"{tag} field {field + 1} ({fields[field]}) is {values[row, col]}; values must be finite",
+        f"{tag} field {field + 1} ({fields[field]}) is {values[row, col]}; values must be {bound}",
         path,
         int(numbers[row]),
     )

@@ -3,19 +3,16 @@
 Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.HessianPattern`
 (symbolic work: ordering, elimination tree) and then, each iteration,
 ``factorize(data)`` with new values of the lower triangle (same pattern) and
-``solve(rhs)``. :func:`make_linear_solver` picks one by name:
+``solve(rhs)``; ``factor()`` gives the last factor itself (for covariances by selected
+inversion). :func:`make_linear_solver` picks one by name:
 
 ``"cholmod"``
-    CHOLMOD's supernodal Cholesky, called directly on the system library
-    (:mod:`posegraph.cholmod`, no scipy import) or, where that binding cannot be used, through
-    scikit-sparse. The analysis (fill-reducing ordering, elimination tree, supernodes) runs once;
-    each iteration only the numeric factorisation. It reads the lower triangle directly. Ordering: AMD by default
-    (on the pose graphs here it factors as fast as METIS / nested dissection and analyses
-    several times faster; figures in ``docs/solver.md``). The system OpenBLAS and the OpenMP loops
-    under CHOLMOD run one thread during the factorisation and solves by default
-    (:class:`~posegraph.native_threads.NativeThreads`): for these sizes on a shared 2-core machine
-    that is 1.25× (idle) to 2.6× (other jobs running) faster than CHOLMOD's own four OpenMP threads
-    and two BLAS threads.
+    CHOLMOD's supernodal Cholesky from the cvxopt wheel (:mod:`posegraph.cholmod`, no scipy
+    import). The fill-reducing ordering is computed on the vertex graph (p nodes, one entry per
+    6×6 block) and expanded to the blocks; the analysis runs once, each iteration only the
+    numeric factorisation, which reads the lower triangle directly. Ordering ``"auto"``: AMD
+    below :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES` free vertices, METIS nested
+    dissection (pymetis) from there (figures in ``docs/cholesky.md``).
 ``"scipy"``
     Needs nothing beyond scipy wheels. SuperLU with no pivoting (``diag_pivot_thresh=0``,
     ``SymmetricMode``) on a matrix permuted once per graph: SuperLU's minimum-degree ordering of
@@ -25,56 +22,38 @@ Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.H
     Without pivoting on a symmetric positive-definite matrix LU is Cholesky in disguise
     (U = D Lᵀ), so it is stable.
 ``"auto"``
-    ``"cholmod"`` when either CHOLMOD path works, else ``"scipy"``.
+    ``"cholmod"`` when cvxopt imports, else ``"scipy"``.
 
-A matrix that is not positive definite raises :class:`NotPositiveDefiniteError`
-(LM then raises λ; Gauss-Newton stops).
+A matrix that is not positive definite — or whose factorisation fails numerically in any other
+way (a zero or non-finite pivot, an overflow) — raises :class:`NotPositiveDefiniteError`
+(LM then raises λ; Gauss-Newton stops). ``name`` says which backend and ordering ran.
 """
 
 from __future__ import annotations
-
-import warnings
 
 import numpy as np
 
 from posegraph import cholmod as cholmod_library
 from posegraph.cholmod import NotPositiveDefiniteError
-from posegraph.native_threads import NativeThreads
 from posegraph.solve.sparsity import BLOCK, HessianPattern, lower_csc
 
 __all__ = [
     "NotPositiveDefiniteError",
     "LinearSolver",
     "CholmodSolver",
-    "BlasThreads",
-    "NativeThreads",
     "ScipySolver",
     "cholmod_available",
-    "scikit_sparse_available",
     "make_linear_solver",
 ]
 
 
-BlasThreads = NativeThreads
-"""The former name of :class:`posegraph.native_threads.NativeThreads` (which now also covers OpenMP)."""
-
-
-def scikit_sparse_available() -> bool:
-    """Whether scikit-sparse's CHOLMOD wrapper can be imported."""
-    try:
-        from sksparse import cholmod  # noqa: F401
-    except Exception:  # ImportError, or a broken shared library
-        return False
-    return True
-
-
 def cholmod_available() -> bool:
-    """Whether CHOLMOD can be used: the direct binding (:func:`posegraph.cholmod.load`) or scikit-sparse."""
-    return cholmod_library.load() is not None or scikit_sparse_available()
+    """Whether CHOLMOD can be used (cvxopt imports: :func:`posegraph.cholmod.load`)."""
+    return cholmod_library.load() is not None
 
 
 class LinearSolver:
-    """Interface: ``factorize(data)`` then ``solve(rhs)``; ``name`` says which backend and ordering ran."""
+    """Interface: ``factorize(data)`` then ``solve(rhs)`` and ``factor()``; ``name`` says which backend and ordering ran."""
 
     name: str = "abstract"
 
@@ -86,70 +65,36 @@ class LinearSolver:
         """Solution ``x`` of ``A x = rhs`` for the last factorised ``A``."""
         raise NotImplementedError
 
+    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - interface
+        """``(indptr, indices, data, permutation)``: the last factor L (lower-triangular CSC, int64
+        indices) and the elimination order, with ``A[perm][:, perm] = L Lᵀ``."""
+        raise NotImplementedError
+
 
 class CholmodSolver(LinearSolver):
-    """CHOLMOD supernodal Cholesky; symbolic analysis once in the constructor.
+    """CHOLMOD supernodal Cholesky (:func:`posegraph.cholmod.block_cholesky`); analysis once in the constructor."""
 
-    ``backend``: ``"direct"`` (:class:`posegraph.cholmod.SparseCholesky`), ``"scikit-sparse"``,
-    or ``"auto"`` (direct when the system library passes its checks, else scikit-sparse).
-    """
+    ORDERINGS = cholmod_library.ORDERINGS
 
-    ORDERINGS = tuple(cholmod_library.ORDERINGS)
-
-    def __init__(self, pattern: HessianPattern, ordering: str = "amd", blas_threads: int | None = 1, backend: str = "auto"):
+    def __init__(self, pattern: HessianPattern, ordering: str = "amd", blas_threads: int | None = 1):
         if ordering not in self.ORDERINGS:
             raise ValueError(f"CHOLMOD ordering must be one of {self.ORDERINGS}, got {ordering!r}")
-        if backend not in ("auto", "direct", "scikit-sparse"):
-            raise ValueError(f"backend must be 'auto', 'direct' or 'scikit-sparse', got {backend!r}")
-        if backend == "auto":
-            backend = "direct" if cholmod_library.load() is not None else "scikit-sparse"
-        self._pattern = pattern
         self.ordering = ordering
-        self.backend = backend
-        if backend == "direct":
-            # Ordered on the vertex graph (p nodes, one entry per 6×6 block) and expanded to the
-            # blocks: the same elimination order as ordering the 6p×6p pattern, found from 36
-            # times fewer entries (parking-garage: analysis 6.8 → 5.7 ms, factorisation 9.7 →
-            # 8.0 ms with AMD, the block postorder helping the supernodes).
-            self._cholesky = cholmod_library.block_cholesky(
-                pattern.indptr, pattern.indices, pattern.block_indptr, pattern.block_indices,
-                pattern.num_variables, BLOCK, ordering, blas_threads,
-            )  # fmt: skip
-            active = self._cholesky.threads_active
-        else:
-            from sksparse import cholmod
-
-            self._cholmod = cholmod
-            structure = lower_csc(pattern, np.ones(pattern.nnz))
-            with warnings.catch_warnings():
-                # scikit-sparse warns when it converts index types; harmless and once per graph
-                warnings.simplefilter("ignore", cholmod.CholmodTypeConversionWarning)
-                self._factor = cholmod.analyze(structure, mode="supernodal", ordering_method=ordering)
-            self._threads = NativeThreads(blas_threads)
-            active = self._threads.active
-        threads = f", {blas_threads} thread{'s' if blas_threads != 1 else ''}" if active else ""
-        via = "" if backend == "direct" else " via scikit-sparse"
-        self.name = f"cholmod (supernodal, {ordering}{threads}){via}"
+        self._cholesky = cholmod_library.block_cholesky(
+            pattern.indptr, pattern.indices, pattern.block_indptr, pattern.block_indices,
+            pattern.num_variables, BLOCK, ordering, blas_threads,
+        )  # fmt: skip
+        threads = f", {blas_threads} BLAS thread{'s' if blas_threads != 1 else ''}" if self._cholesky.threads_active else ""
+        self.name = f"cholmod (supernodal, {ordering}{threads}) via cvxopt"
 
     def factorize(self, data: np.ndarray) -> None:
-        if self.backend == "direct":
-            self._cholesky.factorize(data)
-            return
-        matrix = lower_csc(self._pattern, data)
-        cholmod = self._cholmod
-        try:
-            with warnings.catch_warnings(), self._threads:
-                warnings.simplefilter("error", cholmod.CholmodWarning)
-                warnings.simplefilter("ignore", cholmod.CholmodTypeConversionWarning)
-                self._factor.cholesky_inplace(matrix)
-        except (cholmod.CholmodNotPositiveDefiniteError, cholmod.CholmodWarning) as err:
-            raise NotPositiveDefiniteError(str(err)) from err
+        self._cholesky.factorize(data)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        if self.backend == "direct":
-            return self._cholesky.solve(rhs)
-        with self._threads:
-            return self._factor(rhs)
+        return self._cholesky.solve(rhs)
+
+    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return self._cholesky.factor()
 
 
 def vertex_graph(pattern: HessianPattern):
@@ -236,7 +181,7 @@ class ScipySolver(LinearSolver):
         self._pattern = pattern
         d = pattern.dimension
         order = vertex_ordering(pattern)
-        self.permutation = (BLOCK * order[:, None] + np.arange(BLOCK)[None, :]).ravel()
+        self.permutation = cholmod_library.block_permutation(order, BLOCK)
         # Map from the lower-triangle data to the permuted full matrix's CSC data, computed by
         # pushing the positions 0..nnz-1 through the same symmetrisation and permutation.
         positions = np.arange(pattern.nnz, dtype=np.float64) + 1.0  # +1: keep explicit zeros apart
@@ -253,26 +198,45 @@ class ScipySolver(LinearSolver):
         self.name = "scipy (SuperLU, no pivoting, postordered vertex MMD)"
 
     def factorize(self, data: np.ndarray) -> None:
+        """SuperLU of the permuted matrix; :class:`NotPositiveDefiniteError` unless every pivot is finite and positive.
+
+        (Without pivoting, LU of a symmetric matrix has U's diagonal = D of ``L D Lᵀ``: all
+        positive exactly when the matrix is positive definite.)
+        """
         from scipy.sparse.linalg import splu
 
+        self._lu = None
+        data = np.asarray(data, dtype=np.float64)
+        if not np.isfinite(data).all():
+            raise NotPositiveDefiniteError("matrix has non-finite entries")
         matrix = self._sparse.csc_matrix((data[self._gather], self._indices, self._indptr), shape=self._shape)
+        options = {"SymmetricMode": True}
         try:
-            lu = splu(
-                matrix,
-                permc_spec="NATURAL",
-                diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True},
-            )
+            lu = splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=options)
         except RuntimeError as err:  # "Factor is exactly singular"
-            raise NotPositiveDefiniteError(str(err)) from err
+            raise NotPositiveDefiniteError(f"SuperLU: {err}") from err
+        pivots = lu.U.diagonal()
+        if not (np.isfinite(pivots).all() and (pivots > 0).all()):
+            raise NotPositiveDefiniteError("SuperLU: a pivot is not finite and positive: matrix not positive definite")
         self._lu = lu
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         if self._lu is None:
-            raise RuntimeError("factorize() must be called before solve()")
+            raise RuntimeError("factorize() must succeed before solve()")
         x = np.empty_like(rhs, dtype=np.float64)
         x[self.permutation] = self._lu.solve(np.asarray(rhs, dtype=np.float64)[self.permutation])
         return x
+
+    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """L = L_unit·√D from SuperLU's ``L_unit U`` (``U = D L_unitᵀ`` without pivoting); see :meth:`LinearSolver.factor`."""
+        if self._lu is None:
+            raise RuntimeError("factorize() must succeed before factor()")
+        lu = self._lu
+        if not (np.array_equal(lu.perm_r, np.arange(self._shape[0])) and np.array_equal(lu.perm_c, lu.perm_r)):
+            raise RuntimeError("SuperLU pivoted; its factor is not a Cholesky factor")  # not with diag_pivot_thresh=0
+        lower = (lu.L @ self._sparse.diags(np.sqrt(lu.U.diagonal()))).tocsc()
+        lower.sort_indices()
+        return lower.indptr.astype(np.int64), lower.indices.astype(np.int64), lower.data, self.permutation.copy()
 
 
 def make_linear_solver(
@@ -280,17 +244,16 @@ def make_linear_solver(
 ) -> LinearSolver:
     """Build the backend ``kind`` (``"auto"``, ``"cholmod"`` or ``"scipy"``) for ``pattern``.
 
-    ``ordering`` and ``blas_threads`` apply to CHOLMOD (``"auto"`` means AMD; ``blas_threads=None``
-    leaves OpenBLAS's own setting). Asking for ``"cholmod"`` without scikit-sparse raises
-    ``ImportError`` with the install hint.
+    ``ordering`` and ``blas_threads`` apply to CHOLMOD (``"auto"``:
+    :func:`posegraph.cholmod.auto_ordering`; ``blas_threads=None`` leaves the BLAS under CHOLMOD
+    as it is). Asking for ``"cholmod"`` without cvxopt raises ``ImportError`` with the install hint.
     """
     if kind == "auto":
         kind = "cholmod" if cholmod_available() else "scipy"
     if kind == "cholmod":
         if not cholmod_available():
             raise ImportError(
-                "linear_solver='cholmod' needs the CHOLMOD library (apt-get install libsuitesparse-dev) "
-                f"[{cholmod_library.unavailable_reason()}] or scikit-sparse (pip install 'posegraph[fast]'); "
+                f"linear_solver='cholmod' needs cvxopt's CHOLMOD [{cholmod_library.unavailable_reason()}]; "
                 "use linear_solver='scipy' or 'auto'"
             )
         if ordering == "auto":

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 
 import numpy as np
 import pytest
@@ -29,9 +28,8 @@ from posegraph import cholmod
 GRAPHS = [*synthetic.noise_free_cases(), ("all-of-it, seed 11", *synthetic.hard_graph(11, noise=False))]
 
 
-# "auto" runs the direct CHOLMOD binding when it loads; without it, SuperLU for these small
-# graphs (posegraph.init.linear_system.SMALL_SYSTEM). CHOLMOD is also asked for by name, through
-# each binding (the cholmod_backend fixture), so every path is covered.
+# "auto" runs CHOLMOD (cvxopt) when it imports, else SuperLU; CHOLMOD is also asked for by name
+# (the cholmod_backend fixture) and SuperLU by name, so every path is covered.
 @pytest.mark.parametrize("linear_solver", ["auto", "scipy"])
 @pytest.mark.parametrize("name, graph, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
 def test_noise_free_measurements_give_the_truth_in_the_gauge(name, graph, truth, linear_solver):
@@ -51,7 +49,7 @@ def test_cholmod_thread_setting_changes_nothing_but_speed(cholmod_backend):
     from posegraph.graph import held_vertices
     from posegraph.init.linear_system import RelativeLeastSquares
 
-    graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)  # above SMALL_SYSTEM: CHOLMOD
+    graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)
     rotations = {}
     for threads in (1, 2, None):
         problem = RelativeLeastSquares(
@@ -69,10 +67,8 @@ def test_cholmod_thread_setting_changes_nothing_but_speed(cholmod_backend):
 
 
 def test_without_any_cholmod_auto_falls_back_to_scipy(monkeypatch):
-    # 600 vertices: 1797 unknowns, above the size where "auto" would pick scikit-sparse's CHOLMOD.
     graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)
-    monkeypatch.setattr(cholmod, "load", lambda: None)  # no direct binding
-    monkeypatch.setitem(sys.modules, "sksparse.cholmod", None)  # makes the import fail
+    monkeypatch.setattr(cholmod, "load", lambda: None)  # as without cvxopt
     with pytest.raises(ImportError):
         chordal_initialization(graph, linear_solver="cholmod")
     poses = chordal_initialization(graph)

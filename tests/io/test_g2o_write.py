@@ -109,10 +109,10 @@ def test_rewriting_a_written_file_changes_only_quaternion_rounding(tmp_path):
     seed=st.integers(0, 2**32 - 1),
     n=st.integers(2, 7),
     extra=st.integers(0, 6),
-    exponent=st.integers(-200, 200),
+    exponent=st.integers(-200, 48),  # up to the reader's bound posegraph.io.g2o.MAX_MAGNITUDE (1e50)
 )
 def test_round_trip_property(seed, n, extra, exponent):
-    """Any ids, any magnitude (1e-200 … 1e200): every number comes back."""
+    """Any ids, any magnitude the reader accepts (1e-200 … 1e48 here): every number comes back."""
     graph = random_graph(np.random.default_rng(seed), n=n, m=n - 1 + extra, id_range=2**62, scale=10.0**exponent)
     with tempfile.TemporaryDirectory() as folder:
         path = os.path.join(folder, "g.g2o")
