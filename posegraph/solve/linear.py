@@ -9,7 +9,7 @@ inversion). :func:`make_linear_solver` picks one by name:
 ``"cholmod"``
     CHOLMOD's supernodal Cholesky from the cvxopt wheel (:mod:`posegraph.cholmod`, no scipy
     import). The fill-reducing ordering is computed on the vertex graph (p nodes, one entry per
-    6×6 block) and expanded to the blocks; the analysis runs once, each iteration only the
+    d×d block) and expanded to the blocks; the analysis runs once, each iteration only the
     numeric factorisation, which reads the lower triangle directly. Ordering ``"auto"``: AMD
     below :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES` free vertices, METIS nested
     dissection (pymetis) from there (figures in ``docs/cholesky.md``).
@@ -18,7 +18,7 @@ inversion). :func:`make_linear_solver` picks one by name:
     ``SymmetricMode``) on a matrix permuted once per graph: SuperLU's minimum-degree ordering of
     the *vertex* graph (p×p instead of 6p×6p), postordered along its elimination tree so that
     each subtree is contiguous (this makes SuperLU's supernodes large: ~3× faster numeric
-    factorisation than the same ordering un-postordered) and expanded to the 6×6 blocks.
+    factorisation than the same ordering un-postordered) and expanded to the d×d blocks (d = ``pattern.block_size``, the group's tangent dimension).
     Without pivoting on a symmetric positive-definite matrix LU is Cholesky in disguise
     (U = D Lᵀ), so it is stable.
 ``"auto"``
@@ -35,7 +35,7 @@ import numpy as np
 
 from posegraph import cholmod as cholmod_library
 from posegraph.cholmod import NotPositiveDefiniteError
-from posegraph.solve.sparsity import BLOCK, HessianPattern, lower_csc
+from posegraph.solve.sparsity import HessianPattern, lower_csc
 
 __all__ = [
     "NotPositiveDefiniteError",
@@ -82,7 +82,7 @@ class CholmodSolver(LinearSolver):
         self.ordering = ordering
         self._cholesky = cholmod_library.block_cholesky(
             pattern.indptr, pattern.indices, pattern.block_indptr, pattern.block_indices,
-            pattern.num_variables, BLOCK, ordering, blas_threads,
+            pattern.num_variables, pattern.block_size, ordering, blas_threads,
         )  # fmt: skip
         threads = f", {blas_threads} BLAS thread{'s' if blas_threads != 1 else ''}" if self._cholesky.threads_active else ""
         self.name = f"cholmod (supernodal, {ordering}{threads}) via cvxopt"
@@ -101,11 +101,11 @@ def vertex_graph(pattern: HessianPattern):
     """``(p, p)`` symmetric 0/1 pattern of the block graph (free vertices, diagonal included), scipy CSC."""
     import scipy.sparse as sp
 
-    p = pattern.num_variables
-    cols = np.repeat(np.arange(p * BLOCK), np.diff(pattern.indptr))
+    p, block = pattern.num_variables, pattern.block_size
+    cols = np.repeat(np.arange(p * block), np.diff(pattern.indptr))
     rows = pattern.indices.astype(np.int64)
-    keep = (rows % BLOCK == 0) & (cols % BLOCK == 0)  # one entry per stored block
-    br, bc = rows[keep] // BLOCK, cols[keep] // BLOCK
+    keep = (rows % block == 0) & (cols % block == 0)  # one entry per stored block
+    br, bc = rows[keep] // block, cols[keep] // block
     lower = sp.csc_matrix((np.ones(br.shape[0]), (br, bc)), shape=(p, p))
     return (lower + lower.T).tocsc()
 
@@ -181,7 +181,7 @@ class ScipySolver(LinearSolver):
         self._pattern = pattern
         d = pattern.dimension
         order = vertex_ordering(pattern)
-        self.permutation = cholmod_library.block_permutation(order, BLOCK)
+        self.permutation = cholmod_library.block_permutation(order, pattern.block_size)
         # Map from the lower-triangle data to the permuted full matrix's CSC data, computed by
         # pushing the positions 0..nnz-1 through the same symmetrisation and permutation.
         positions = np.arange(pattern.nnz, dtype=np.float64) + 1.0  # +1: keep explicit zeros apart
