@@ -91,6 +91,8 @@ class PoseGraph:
     """Path the graph was read from, if any (used in messages)."""
     edge_source: EdgeSource | None = field(default=None, repr=False)
     """The edge lines as read, for a writer to copy (see :class:`EdgeSource`); None if not kept."""
+    edge_lines: np.ndarray | None = field(default=None, repr=False)
+    """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:

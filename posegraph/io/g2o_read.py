@@ -11,6 +11,7 @@ entry there. The format, checks and repairs are described in ``docs/g2o.md``.
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from dataclasses import replace
 from typing import NamedTuple
@@ -108,6 +109,9 @@ def read_g2o(
         several connected components (one warning each, after all checks pass).
     """
     name = os.fspath(path)
+    if name == "-":  # standard input, as g2o's and Unix tools' "-"
+        text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
+        return _parse(text, "<stdin>", source=None, require_edges=require_edges, repair_information=repair_information)
     try:
         with open(name, "rb") as handle:
             data = handle.read()
@@ -133,7 +137,7 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
     vertices, edges, information, value_notes = _values(records, lines, path, repair_information)
     notes += value_notes
     # Stage 3: an empty graph.
-    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, require_edges, path)
+    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, first_line, require_edges, path)
     notes += empty_notes
     # Stage 4: the graph.
     edge_index, fixed = topology(vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path)
@@ -146,6 +150,7 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         information=information,
         fixed=fixed,
         source=source,
+        edge_lines=edges.numbers.copy(),
     )
     if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
         # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
@@ -215,16 +220,23 @@ def _values(records: dict[str, np.ndarray], lines: dict[str, Lines], path: str, 
 
 
 def _vertices_or_refusal(
-    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], require_edges: bool, path: str
+    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], first_line: dict[str, int], require_edges: bool,
+    path: str,
 ) -> tuple[_Poses, list[str]]:
-    """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file)."""
+    """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
+
+    A file with no pose-graph line at all is named by its first line with data (``skipped`` keeps
+    the tags in the order they first occur): not a g2o file, most likely.
+    """
     if len(vertices.ids) == 0:
         if len(edges.ids) == 0:
-            also = f" (the file has only: {', '.join(sorted(skipped))})" if skipped else ""
+            first = next(iter(skipped), None)
+            also = f"; this line begins with {first[:40]!r}, not a g2o tag posegraph reads" if first else ""
             raise GraphError(
                 f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}, nor edges): there is no 3D pose graph "
                 f"to read{also}",
                 path,
+                first_line[first] if first else None,
             )
         if not require_edges:
             raise GraphError(
