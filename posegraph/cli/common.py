@@ -156,12 +156,15 @@ def fmt_cost(x: float) -> str:
 # paths and inputs
 
 
-def check_output(path: str, *, inputs=(), allow_input: bool = False, what: str = "output") -> None:
-    """Fail before any work if ``path`` cannot be written as asked (``-``, standard output, always can)."""
+def check_output(path: str, *, inputs=(), allow_input: bool = False, what: str = "output", stdout: bool = False) -> None:
+    """Fail before any work if ``path`` cannot be written as asked; ``-`` is standard output where
+    the command can write this output there (``stdout``), else a usage error."""
     from posegraph.errors import OutputError
 
     if path == STDIO:
-        return
+        if stdout:
+            return
+        raise UsageError(f"the {what} cannot go to standard output (-): give a file name")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise OutputError(f"cannot write the {what}: folder {folder} does not exist", path=path)
@@ -195,8 +198,6 @@ def check_figure(path: str, inputs=()) -> None:
     does not write (the extension picks it; none means PNG), or an unwritable path."""
     from posegraph.errors import OutputError
 
-    if path == STDIO:
-        raise UsageError("a figure cannot go to standard output: give a file name (FIG.png, FIG.pdf, FIG.svg …)")
     check_output(path, inputs=inputs, what="figure")
     require_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -86,9 +86,9 @@ def display_name_out(path: str) -> str:
 
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
-    check_output(args.output, inputs=[args.input], allow_input=args.force, what="result")
+    check_output(args.output, inputs=[args.input], allow_input=args.force, what="result", stdout=True)
     if args.report:
-        check_output(args.report, inputs=[args.input], what="report")
+        check_output(args.report, inputs=[args.input], what="report", stdout=True)
     if args.plot:
         check_figure(args.plot, inputs=[args.input])
     if args.output == STDIO and args.report == STDIO:
