@@ -156,7 +156,9 @@ def fmt_cost(x: float) -> str:
 # paths and inputs
 
 
-def check_output(path: str, *, inputs=(), allow_input: bool = False, what: str = "output", stdout: bool = False) -> None:
+def check_output(
+    path: str, *, inputs=(), allow_input: bool = False, what: str = "output", stdout: bool = False
+) -> None:
     """Fail before any work if ``path`` cannot be written as asked; ``-`` is standard output where
     the command can write this output there (``stdout``), else a usage error."""
     from posegraph.errors import OutputError

@@ -92,7 +92,8 @@ def _run_gtsam(args, status: Status, ours: dict):
     status(f"gtsam: {params.method}, start {'same as posegraph' if gtsam_init == 'given' else args.init}")
     # With repaired information (or a graph from standard input) gtsam gets our model, not the file.
     theirs = run_gtsam(
-        graph if args.repair_information or args.input == STDIO else args.input, graph=graph, init=gtsam_init, initial=gtsam_initial,
+        graph if args.repair_information or args.input == STDIO else args.input,
+        graph=graph, init=gtsam_init, initial=gtsam_initial,
         method=params.method,
         max_iterations=params.max_iterations, relative_tolerance=params.relative_tolerance,
         absolute_tolerance=params.absolute_tolerance,
@@ -126,7 +127,8 @@ def _phases(args, ours: dict, theirs, gtsam_init: str) -> dict:
     phases = {
         "seconds read file": (seconds["read"], None if gtsam_built else theirs.seconds_read),
         "seconds convert graph": (None, theirs.seconds_read if gtsam_built else None),
-        f"seconds initialise ({args.init})": (seconds["initialise"], None if gtsam_given else theirs.seconds_initialise),
+        f"seconds initialise ({args.init})": (
+            seconds["initialise"], None if gtsam_given else theirs.seconds_initialise),
         "seconds convert start": (None, theirs.seconds_initialise if gtsam_given else None),
         "seconds optimise": (seconds["optimise"], theirs.seconds_optimise),
     }

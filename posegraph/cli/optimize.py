@@ -232,8 +232,8 @@ def _warn_if_chi2_high(chi2: dict) -> None:
     if not chi2["chi2_per_dof"] > CHI2_PER_DOF_WARNING:
         return
     worst = ", ".join(
-        (f"line {e['line']}" if e["line"] is not None else "edge") + f" ({e['from_id']}->{e['to_id']}, χ² {e['chi2']:.3g})"
-        for e in chi2["worst_edges"]
+        (f"line {e['line']}" if e["line"] is not None else "edge")
+        + f" ({e['from_id']}->{e['to_id']}, χ² {e['chi2']:.3g})" for e in chi2["worst_edges"]
     )
     warn(f"χ²/dof = {chi2['chi2_per_dof']:.3g} is far above the ≈1 the information matrices predict "
          f"(> {CHI2_PER_DOF_WARNING:g}): outliers or overconfident edges? largest χ²: {worst}; "

@@ -84,7 +84,8 @@ def stop_reason(result, params) -> str:
     relative = decrease / before if before > 0 else 0.0
     reasons = {
         "converged: relative decrease": (
-            f"the last step lowered the cost by {relative:.1e} of it, within the relative tolerance {params.relative_tolerance:g}"),
+            f"the last step lowered the cost by {relative:.1e} of it, within the relative tolerance "
+            f"{params.relative_tolerance:g}"),
         "converged: absolute decrease": (
             f"the last step lowered the cost by {decrease:.1e}, within the "
             f"absolute tolerance {params.absolute_tolerance:g}"),

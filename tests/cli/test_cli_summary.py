@@ -39,7 +39,8 @@ def test_summary_says_what_the_cost_is_and_prints_chi2_and_chi2_per_dof(sphere_r
     assert cost == pytest.approx(675.70096, abs=1e-4) and chi2 == pytest.approx(1351.4019, abs=1e-3)
     assert chi2 == pytest.approx(2 * cost, rel=1e-11)
     assert "½χ²" in re.search(r"^final cost:.*$", run.stdout, re.MULTILINE).group(0)
-    dof_line = re.search(r"^χ²/dof:\s+(\S+) \(dof = 6·4949 edges − 6·2499 free poses = 14700", run.stdout, re.MULTILINE)
+    dof_line = re.search(r"^χ²/dof:\s+(\S+) \(dof = 6·4949 edges − 6·2499 free poses = 14700", run.stdout,
+                         re.MULTILINE)
     assert dof_line and float(dof_line.group(1)) == pytest.approx(chi2 / 14700, rel=1e-3)
     assert "warning" not in run.stderr  # χ²/dof 0.09: nothing to warn about
     # The report: each field once, meaning what it says.
