@@ -225,18 +225,16 @@ def _vertices_or_refusal(
 ) -> tuple[_Poses, list[str]]:
     """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
 
-    A file with no pose-graph line at all is named by its first line with data (``skipped`` keeps
-    the tags in the order they first occur): not a g2o file, most likely.
+    A file with no pose-graph line at all is described by its first line with data and at most
+    three more of its tags (``skipped`` keeps the tags in the order they first occur), not by
+    every word of a text file.
     """
     if len(vertices.ids) == 0:
         if len(edges.ids) == 0:
-            first = next(iter(skipped), None)
-            also = f"; this line begins with {first[:40]!r}, not a g2o tag posegraph reads" if first else ""
             raise GraphError(
                 f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}, nor edges): there is no 3D pose graph "
-                f"to read{also}",
+                f"to read{_first_unread_line(skipped, first_line)}",
                 path,
-                first_line[first] if first else None,
             )
         if not require_edges:
             raise GraphError(
@@ -249,6 +247,20 @@ def _vertices_or_refusal(
     if len(edges.ids) == 0 and require_edges:
         raise GraphError(f"the file has no {EDGE_TAG} lines (nor {EDGE3_TAG}): there is nothing to optimise", path)
     return vertices, []
+
+
+def _first_unread_line(skipped: dict[str, int], first_line: dict[str, int]) -> str:
+    """``"; … line 3, begins with 'The'"``: where a file without pose-graph lines starts, and up to three
+    more of its g2o-like tags (upper-case words such as ``EDGE_SE3_TRACKXYZ``), or ``""``."""
+    if not skipped:
+        return ""
+    first = next(iter(skipped))
+    text = f"; its first line with data, line {first_line[first]}, begins with {first[:40]!r}"
+    others = [tag for tag in skipped if tag != first and tag[:1].isupper() and tag.replace(":", "_").isidentifier()
+              and tag.upper() == tag]
+    if others:
+        text += " (other tags: " + ", ".join(others[:3]) + (", …" if len(others) > 3 else "") + ")"
+    return text
 
 
 def _rotations_or_identity(q: np.ndarray) -> np.ndarray:
