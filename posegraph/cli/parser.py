@@ -16,8 +16,9 @@ COMMANDS = ("optimize", "compare", "verify-jacobians", "info", "eval", "plot", "
 """The subcommands, in the order of ``--help``; ``posegraph.cli.<name with _ for ->`` implements each."""
 
 DESCRIPTION = "SE(3) pose-graph optimisation over g2o files, cross-checked against gtsam."
-EPILOG = """exit status: 0 success, 1 not converged / checks or comparison failed (results still
-written), 2 bad input or usage (nothing written), 3 internal error (rerun with --debug), 130 interrupted.
+EPILOG = """exit status: 0 success, 1 not converged / figure not drawn / checks or comparison failed
+(results still written), 2 bad input or usage (nothing written), 3 internal error (rerun with
+--debug), 130 interrupted.
 
 examples:
   posegraph info sphere2500.g2o
