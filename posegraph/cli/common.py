@@ -174,7 +174,7 @@ def check_output(
         raise OutputError(f"cannot write the {what}: it is a folder", path=path)
     reason = _cannot_create_in(folder)
     if reason:
-        raise OutputError(f"cannot write the {what}: folder {folder}: {reason}", path=path)
+        raise OutputError(f"cannot write the {what}: no file can be created in folder {folder} ({reason})", path=path)
     for source in inputs:
         if source != STDIO and _same_file(path, source) and not allow_input:
             hint = " (pass --force to overwrite it)" if what == "result" else ""
