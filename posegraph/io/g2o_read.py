@@ -66,7 +66,8 @@ def read_g2o(
     path:
         The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
         lines, and gtsam's older ``VERTEX3`` / ``EDGE3``; see ``docs/g2o.md``
-        for the format and the checks).
+        for the format and the checks); ``"-"`` reads standard input
+        (messages then name ``<stdin>``).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
         file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
@@ -111,7 +112,7 @@ def read_g2o(
     name = os.fspath(path)
     if name == "-":  # standard input, as g2o's and Unix tools' "-"
         text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
-        return _parse(text, "<stdin>", source=None, require_edges=require_edges, repair_information=repair_information)
+        return _parse(text, "<stdin>", None, require_edges=require_edges, repair_information=repair_information)
     try:
         with open(name, "rb") as handle:
             data = handle.read()
