@@ -26,6 +26,7 @@ blocks among them — without forming any other entry.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ __all__ = [
     "BlockFactor",
     "block_factor",
     "selected_inverse",
+    "supernodes",
 ]
 
 
@@ -242,11 +244,20 @@ def block_factor(factor: CSCFactor, block: int) -> BlockFactor:
     rows = factor.indices
     if np.any(rows < cols):
         raise ValueError("factor has entries above the diagonal")
-    keys = (cols // block) * p + rows // block
-    unique = np.sort(keys)
+    keys = (cols // block) * p + rows // block  # ascending within each scalar column
+    # Candidates: the blocks of each vertex's first scalar column, which has the whole block
+    # column's pattern when the pattern is closed under elimination; checked, sorted otherwise.
+    first = np.zeros(n, dtype=bool)
+    first[::block] = True
+    unique = keys[first[cols]]
     unique = unique[np.concatenate(([True], unique[1:] != unique[:-1]))] if unique.size else unique
+    where = np.minimum(np.searchsorted(unique, keys), max(unique.shape[0] - 1, 0))
+    if unique.size and not np.array_equal(unique[where], keys):
+        unique = np.sort(keys)
+        unique = unique[np.concatenate(([True], unique[1:] != unique[:-1]))]
+        where = np.searchsorted(unique, keys)
     values = np.zeros((unique.shape[0], block, block))
-    values[np.searchsorted(unique, keys), rows % block, cols % block] = factor.data
+    values[where, rows % block, cols % block] = factor.data
     block_cols, block_rows = unique // p, unique % p
     indptr = np.searchsorted(block_cols, np.arange(p + 1))
     if np.any(block_rows[indptr[:-1]] != np.arange(p)):
@@ -269,56 +280,80 @@ def ancestor_closure(factor: BlockFactor, columns) -> np.ndarray:
     return np.flatnonzero(marked)
 
 
+def supernodes(factor: BlockFactor) -> np.ndarray:
+    """First block column of each (fundamental) block supernode, then ``p``: ``(s + 1,)``.
+
+    Columns ``K`` and ``K + 1`` share a supernode when ``K + 1`` is ``K``'s parent and column ``K``
+    has exactly one block more: the pattern is closed under elimination (column ``K``'s rows below
+    ``K + 1`` are among column ``K + 1``'s), so then their rows below the supernode coincide.
+    """
+    p = factor.indptr.shape[0] - 1
+    count = np.diff(factor.indptr)
+    joined = (factor.parents()[:-1] == np.arange(1, p)) & (count[:-1] == count[1:] + 1)
+    return np.concatenate(([0], np.flatnonzero(~joined) + 1, [p])) if p else np.zeros(1, dtype=np.int64)
+
+
 def selected_inverse(factor: BlockFactor, columns=None) -> np.ndarray:
     """``Σ = (L Lᵀ)⁻¹`` on the block pattern of ``L``: ``(b, d, d)``, block ``b`` = ``Σ[rows[b], columns[b]]``.
 
     Takahashi, Fagan & Chin (1973) / Erisman & Tinney (1975) recurrence, in block form as in Lin et
-    al., "SelInv", ACM TOMS 37 (2011), Alg. 1 (there with LDLᵀ). From ``Σ = L⁻ᵀ L⁻¹``, for each block
-    column ``K`` in reverse elimination order, with ``S`` its row blocks below the diagonal::
+    al., "SelInv", ACM TOMS 37 (2011), Alg. 1 (there with LDLᵀ). From ``Σ = L⁻ᵀ L⁻¹`` (so
+    ``Lᵀ Σ = L⁻¹``, upper triangular), for each supernode ``D`` (:func:`supernodes`: consecutive
+    columns with a dense lower-triangular diagonal part ``L_DD`` and common rows ``S`` below it) in
+    reverse elimination order::
 
-        B     = L_SK · L_KK⁻¹                       (|S|·d × d)
-        Σ_SK  = −Σ_SS · B
-        Σ_KK  = L_KK⁻ᵀ L_KK⁻¹ − Bᵀ Σ_SK
+        B     = L_SD · L_DD⁻¹                       (|S|·d × |D|·d)
+        Σ_SD  = −Σ_SS · B
+        Σ_DD  = L_DD⁻ᵀ L_DD⁻¹ − Bᵀ Σ_SD
 
-    ``Σ_SS`` lies in the block pattern (it is closed under elimination: rows ``i > j`` of column
-    ``K`` make ``(i, j)`` a block of ``L``) and belongs to columns after ``K``, already done. Each
-    step is a handful of dense products of size ``|S|·d``. ``columns``: only these block columns
-    and their ancestors (:func:`ancestor_closure`) are visited, enough for their diagonal blocks;
-    the other blocks of the result stay zero. ``None``: all.
+    ``Σ_SS`` lies in the block pattern (closed under elimination: rows ``i > j`` of a column make
+    ``(i, j)`` a block of ``L``) and belongs to later supernodes, already done. Each supernode is a
+    few dense products of size ``(|S| + |D|)·d``. ``columns``: only the supernodes holding these
+    block columns or their elimination-tree ancestors (:func:`ancestor_closure`) are visited, enough
+    for these columns' blocks; the other blocks of the result stay zero. ``None``: all.
     """
+    from scipy.linalg.blas import dsymm as symmetric_product
+    from scipy.linalg.lapack import dtrtri as triangular_inverse
+
     d = factor.block
-    p = factor.indptr.shape[0] - 1
-    visit = np.arange(p) if columns is None else ancestor_closure(factor, columns)
-    diagonal_inverse = np.linalg.inv(factor.values[factor.indptr[:-1][visit]])  # L_KK⁻¹
+    starts = supernodes(factor)
     sigma = np.zeros_like(factor.values)
-    indptr = factor.indptr.tolist()
-    for step in range(visit.shape[0] - 1, -1, -1):
-        K = int(visit[step])
-        start, end = indptr[K], indptr[K + 1]
-        inverse = diagonal_inverse[step]
-        top = inverse.T @ inverse
-        if end - start == 1:
-            sigma[start] = top
-            continue
-        S = factor.rows[start + 1 : end]
-        B = factor.values[start + 1 : end].reshape(-1, d) @ inverse
-        sigma_SK = -(_symmetric_blocks(factor, sigma, S) @ B)
-        sigma[start + 1 : end] = sigma_SK.reshape(-1, d, d)
-        sigma[start] = top - B.T @ sigma_SK
+    visit = np.arange(starts.shape[0] - 1)
+    if columns is not None:
+        visit = np.unique(np.searchsorted(starts, ancestor_closure(factor, columns), side="right") - 1)
+    for node in visit[::-1].tolist():
+        first, width = int(starts[node]), int(starts[node + 1] - starts[node])
+        height = int(factor.indptr[first + 1] - factor.indptr[first])  # |D| + |S| blocks
+        r, j = np.arange(height)[:, None], np.arange(width)[None, :]
+        inside = r >= j
+        position = np.where(inside, factor.indptr[first + j] + r - j, 0)  # block (first + r, first + j)
+        blocks = factor.values[position] * inside[:, :, None, None]
+        L_RD = blocks.transpose(0, 2, 1, 3).reshape(height * d, width * d)
+        inverse, info = triangular_inverse(L_RD[: width * d], lower=1)  # L_DD⁻¹
+        if info:
+            raise ArithmeticError(f"diagonal block of the factor is singular (LAPACK dtrtri info {info})")
+        sigma_RD = inverse.T @ inverse
+        if height > width:
+            B = L_RD[width * d :] @ inverse
+            S = factor.rows[factor.indptr[first] + width : factor.indptr[first + 1]]
+            sigma_SD = symmetric_product(-1.0, _gathered_sigma(factor, sigma, S), B, lower=1)  # −Σ_SS B
+            sigma_RD = np.concatenate((sigma_RD - B.T @ sigma_SD, sigma_SD))
+        sigma[position[inside]] = sigma_RD.reshape(height, d, width, d).transpose(0, 2, 1, 3)[inside]
     return sigma
 
 
-def _symmetric_blocks(factor: BlockFactor, sigma: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """``Σ_SS`` ``(|S|·d, |S|·d)`` for ascending block indices ``S`` from the lower blocks ``sigma``."""
+def _gathered_sigma(factor: BlockFactor, sigma: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``(|S|·d, |S|·d)`` matrix whose **lower triangle** is ``Σ_SS``, ``S`` ascending block indices.
+
+    Block ``(a, b)`` holds the stored ``Σ[max(S_a, S_b), min(S_a, S_b)]``: right on and below the
+    block diagonal (diagonal blocks are symmetric), transposed above it; only the lower triangle is
+    read (``dsymm``), so the upper one is never fixed up.
+    """
     m, d = S.shape[0], factor.block
-    row, col = np.maximum.outer(S, S), np.minimum.outer(S, S)
-    position = factor.find(row, col)
+    position = factor.find(np.maximum.outer(S, S), np.minimum.outer(S, S))
     if np.any(position < 0):
         raise RuntimeError("factor pattern is not closed under elimination: a block of Σ_SS is missing")
-    blocks = sigma[position]  # (m, m, d, d): block (a, b) = Σ[max, min]
-    upper = S[:, None] < S[None, :]
-    blocks[upper] = np.swapaxes(blocks[upper], -1, -2)  # Σ[S_a, S_b] = Σ[S_b, S_a]ᵀ above the diagonal
-    return blocks.transpose(0, 2, 1, 3).reshape(m * d, m * d)
+    return sigma[position].transpose(0, 2, 1, 3).reshape(m * d, m * d)
 
 
 @dataclass(frozen=True, eq=False)
@@ -344,6 +379,20 @@ def _factorise(graph, poses) -> _Factorisation:
     position = np.full(graph.num_vertices, -1, dtype=np.int64)
     position[free] = rank[pattern.variable_of[free]]
     return _Factorisation(block_factor(L, d), position)
+
+
+def _one_blas_thread():
+    """numpy's/scipy's BLAS (and cvxopt's) on one thread for the block, when threadpoolctl is installed.
+
+    The dense products of :func:`selected_inverse` are small and many; on the shared 2-core machine
+    here two BLAS threads contending with other jobs made it 5× slower (sphere2500: 1.9 s against
+    0.38 s on one thread, measured alternately under load ~2).
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(1)
 
 
 def _vertex_indices(graph, vertices) -> np.ndarray:
@@ -373,13 +422,14 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     vertices = _vertex_indices(graph, vertices)
     d = tangent_dimension(graph)
     out = np.zeros((vertices.shape[0], d, d))
-    columns = _factorise(graph, poses) if vertices.size else None
-    if columns is None:
+    if vertices.size == 0:
         return out
-    K = columns.position[vertices]
-    free = K >= 0
-    sigma = selected_inverse(columns.factor, np.unique(K[free]))
-    diagonal = sigma[columns.factor.indptr[K[free]]]
+    with _one_blas_thread():
+        setup = _factorise(graph, poses)
+        K = setup.position[vertices]
+        free = K >= 0
+        sigma = selected_inverse(setup.factor, np.unique(K[free]))
+    diagonal = sigma[setup.factor.indptr[K[free]]]
     out[free] = 0.5 * (diagonal + np.swapaxes(diagonal, -1, -2))
     return out
 
@@ -401,19 +451,19 @@ def joint_covariance(graph, poses, vertices) -> np.ndarray:
     out = np.zeros((k, d, k, d))
     if k == 0:
         return out.reshape(0, 0)
-    setup = _factorise(graph, poses)
-    free = np.flatnonzero(setup.position[vertices] >= 0)
-    if free.size == 0:
-        return out.reshape(k * d, k * d)
-    K = setup.position[vertices[free]]
-    row, col = np.maximum.outer(K, K), np.minimum.outer(K, K)
-    position = setup.factor.find(row, col)
-    if np.all(position >= 0):
-        blocks = selected_inverse(setup.factor, np.unique(K))[position]  # Σ[max, min]
-        upper = K[:, None] < K[None, :]
-        blocks[upper] = np.swapaxes(blocks[upper], -1, -2)
-    else:
-        blocks = _solve_columns(setup.factor, K)
+    with _one_blas_thread():
+        setup = _factorise(graph, poses)
+        free = np.flatnonzero(setup.position[vertices] >= 0)
+        if free.size == 0:
+            return out.reshape(k * d, k * d)
+        K = setup.position[vertices[free]]
+        position = setup.factor.find(np.maximum.outer(K, K), np.minimum.outer(K, K))
+        if np.all(position >= 0):
+            blocks = selected_inverse(setup.factor, np.unique(K))[position]  # Σ[max, min]
+            upper = K[:, None] < K[None, :]
+            blocks[upper] = np.swapaxes(blocks[upper], -1, -2)
+        else:
+            blocks = _solve_columns(setup.factor, K)
     out[np.ix_(free, np.arange(d), free, np.arange(d))] = blocks.transpose(0, 2, 1, 3)
     joint = out.reshape(k * d, k * d)
     return 0.5 * (joint + joint.T)
