@@ -240,29 +240,53 @@ def block_factor(factor: CSCFactor, block: int) -> BlockFactor:
     if n % block:
         raise ValueError(f"factor of order {n} is not made of {block}×{block} blocks")
     p = n // block
-    cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(factor.indptr))
+    counts = np.diff(factor.indptr)
+    cols = np.repeat(np.arange(n, dtype=np.int64), counts)
     rows = factor.indices
     if np.any(rows < cols):
         raise ValueError("factor has entries above the diagonal")
-    keys = (cols // block) * p + rows // block  # ascending within each scalar column
-    # Candidates: the blocks of each vertex's first scalar column, which has the whole block
-    # column's pattern when the pattern is closed under elimination; checked, sorted otherwise.
-    first = np.zeros(n, dtype=bool)
-    first[::block] = True
-    unique = keys[first[cols]]
-    unique = unique[np.concatenate(([True], unique[1:] != unique[:-1]))] if unique.size else unique
-    where = np.minimum(np.searchsorted(unique, keys), max(unique.shape[0] - 1, 0))
-    if unique.size and not np.array_equal(unique[where], keys):
+    found = _whole_blocks(factor, counts, cols, block)
+    if found is None:  # some stored block is partial: find the blocks by sorting their keys
+        keys = (cols // block) * p + rows // block
         unique = np.sort(keys)
-        unique = unique[np.concatenate(([True], unique[1:] != unique[:-1]))]
+        unique = unique[np.concatenate(([True], unique[1:] != unique[:-1]))] if unique.size else unique
         where = np.searchsorted(unique, keys)
-    values = np.zeros((unique.shape[0], block, block))
+        block_cols, block_rows = unique // p, unique % p
+        indptr = np.searchsorted(block_cols, np.arange(p + 1))
+    else:
+        where, block_rows, indptr = found
+        block_cols = np.repeat(np.arange(p, dtype=np.int64), np.diff(indptr))
+    values = np.zeros((block_rows.shape[0], block, block))
     values[where, rows % block, cols % block] = factor.data
-    block_cols, block_rows = unique // p, unique % p
-    indptr = np.searchsorted(block_cols, np.arange(p + 1))
     if np.any(block_rows[indptr[:-1]] != np.arange(p)):
         raise ValueError("factor has an empty diagonal block")
-    return BlockFactor(block, indptr, block_rows, block_cols, values, unique, factor)
+    return BlockFactor(block, indptr, block_rows, block_cols, values, block_cols * p + block_rows, factor)
+
+
+def _whole_blocks(factor: CSCFactor, counts, cols, block: int):
+    """``(block of each entry, block rows, block indptr)`` when ``L`` stores whole blocks, else ``None``.
+
+    Then scalar column ``d·K + q`` holds the ``d − q`` lower rows of its diagonal block followed by
+    all ``d`` rows of each off-diagonal block of block column ``K``, the same blocks for every
+    ``q`` — true of a pattern closed under elimination with dense diagonal blocks (CHOLMOD's,
+    amalgamated supernodes included); checked here, entry by entry, without a sort.
+    """
+    d = block
+    first = counts[::d]
+    if np.any(first % d):
+        return None
+    per_column = first // d  # blocks in each block column, diagonal included
+    q = np.arange(counts.shape[0]) % d
+    if not np.array_equal(counts, (d - q) + d * (np.repeat(per_column, d) - 1)):
+        return None
+    offset = np.arange(cols.shape[0]) - factor.indptr[cols]  # entry's place in its column
+    head = d - cols % d
+    indptr = np.concatenate(([0], np.cumsum(per_column)))
+    where = indptr[cols // d] + np.where(offset < head, 0, 1 + (offset - head) // d)
+    rows = factor.indices // d
+    block_rows = np.empty(indptr[-1], dtype=np.int64)
+    block_rows[where] = rows
+    return (where, block_rows, indptr) if np.array_equal(block_rows[where], rows) else None
 
 
 def ancestor_closure(factor: BlockFactor, columns) -> np.ndarray:
@@ -388,6 +412,14 @@ def _one_blas_thread():
     here two BLAS threads contending with other jobs made it 5× slower (sphere2500: 1.9 s against
     0.38 s on one thread, measured alternately under load ~2).
     """
+    # threadpoolctl limits the BLAS libraries loaded when it is called: numpy's, scipy's and
+    # cvxopt's wheels each bundle their own OpenBLAS, so load them all first.
+    import scipy.linalg.blas  # noqa: F401
+
+    try:
+        import cvxopt.cholmod  # noqa: F401
+    except ImportError:
+        pass
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:
