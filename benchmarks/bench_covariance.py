@@ -88,6 +88,58 @@ def compare(name: str, repeats: int) -> dict:
     }
 
 
+def routes(name: str, chunks: int = 3) -> dict:
+    """Seconds of the alternative routes to all marginals on one dataset, at our optimum.
+
+    ``selected_inversion``: :func:`marginal_covariances`. ``superlu_factor``: the same with the
+    SuperLU fallback factor. ``block_solves``: the CHOLMOD factor, then ``6`` right-hand sides per
+    pose through ``cvxopt.cholmod.solve`` in chunks of 100 poses; ``chunks`` of them are timed and
+    the total extrapolated (all of them would be ``p / 100``). ``gtsam``: as in :func:`compare`.
+    """
+    from cvxopt import cholmod, matrix, spmatrix
+
+    import posegraph
+    from posegraph import covariance as cv
+
+    graph = posegraph.read_g2o(SHARED_DATASETS / f"{name}.g2o")
+    poses = posegraph.optimize(graph).poses
+    out = {"dataset": name}
+    start = time.perf_counter()
+    cv.marginal_covariances(graph, poses)
+    out["selected_inversion"] = time.perf_counter() - start
+    with cv._one_blas_thread():
+        start = time.perf_counter()
+        cholesky, cv.cholesky_factor = cv.cholesky_factor, lambda lower, perm: (cv._superlu_cholesky(lower, perm), perm)
+        try:
+            cv.marginal_covariances(graph, poses)
+        finally:
+            cv.cholesky_factor = cholesky
+        out["superlu_factor"] = time.perf_counter() - start
+        start = time.perf_counter()
+        pattern, data = cv.hessian_at(graph, poses)
+        n = pattern.dimension
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr))
+        A = spmatrix(matrix(data), matrix(pattern.indices.astype(np.int64)), matrix(cols), (n, n))
+        F = cholmod.symbolic(A, uplo="L")
+        cholmod.numeric(A, F)
+        setup = time.perf_counter() - start
+        per_chunk, width = [], 100 * 6
+        for chunk in range(chunks):
+            start = time.perf_counter()
+            rhs = np.zeros((n, width))
+            rhs[chunk * width + np.arange(width), np.arange(width)] = 1.0
+            B = matrix(rhs)
+            cholmod.solve(F, B)
+            solved = np.asarray(B).reshape(width, n).T  # cvxopt is column-major
+            _ = solved[chunk * width : (chunk + 1) * width].reshape(100, 6, 100, 6)[np.arange(100), :, np.arange(100), :]
+            per_chunk.append(time.perf_counter() - start)
+        out["block_solves"] = setup + statistics.median(per_chunk) * n / width
+    start = time.perf_counter()
+    gtsam_all_marginals(graph, poses)
+    out["gtsam"] = time.perf_counter() - start
+    return out
+
+
 def _peak_reset() -> bool:
     try:
         Path("/proc/self/clear_refs").write_text("5")
@@ -177,11 +229,13 @@ def main(argv: list[str] | None = None) -> int:
     side = sub.add_parser("compare", help="posegraph against gtsam.Marginals on shared datasets")
     side.add_argument("--datasets", nargs="+", default=["sphere2500", "torus3D"])
     side.add_argument("--repeats", type=int, default=3)
+    alternatives = sub.add_parser("routes", help="seconds of the alternative routes on one dataset")
+    alternatives.add_argument("--dataset", default="sphere2500")
     scale = sub.add_parser("scaling", help="time and peak memory against the number of poses")
     scale.add_argument("--shape", default="sphere")
     scale.add_argument("--sizes", nargs="+", type=int, default=[2500, 10000, 50000, 200000])
     scale.add_argument("--timeout", type=float, default=600.0)
-    for each in (side, scale):
+    for each in (side, scale, alternatives):
         each.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = parser.parse_args(argv)
     if args.worker:
@@ -197,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"ratio {row['ratio']:.4f} (1/{1 / row['ratio']:.0f})  max rel block diff {row['max_relative_block_difference']:.1e}",
                 flush=True,
             )
+    elif args.command == "routes":
+        rows = [routes(args.dataset)]
+        print("  ".join(f"{k} {v:.3f} s" if isinstance(v, float) else str(v) for k, v in rows[0].items()))
     elif args.command == "scaling":
         rows = scaling(args.shape, args.sizes, args.timeout)
     else:
