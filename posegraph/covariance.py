@@ -451,6 +451,8 @@ def _factorise(graph, poses, keep_scalar: bool = False) -> _Factorisation:
     from posegraph.cholmod import block_permutation
 
     d = tangent_dimension(graph)
+    if np.shape(poses) != np.shape(graph.poses):
+        raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
     if pattern.dimension != d * pattern.num_variables:
         raise ValueError(f"Hessian blocks are {pattern.dimension // max(pattern.num_variables, 1)}, expected {d}")
@@ -512,6 +514,8 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     anchors) get zero: the gauge is theirs, the others' covariances are relative to them (module
     docstring). Cost: one sparse Cholesky and the selected inversion over the requested
     vertices' block columns and their elimination-tree ancestors (:func:`selected_inverse`).
+    Raises :class:`posegraph.cholmod.NotPositiveDefiniteError` when H is not positive definite
+    at ``poses``.
     """
     vertices = _vertex_indices(graph, vertices)
     d = tangent_dimension(graph)
@@ -522,7 +526,9 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
         setup = _factorise(graph, poses)
         K = setup.position[vertices]
         free = K >= 0
-        sigma = selected_inverse(setup.factor, np.unique(K[free]))
+        columns = np.unique(K[free])
+        every = columns.shape[0] == setup.factor.indptr.shape[0] - 1
+        sigma = selected_inverse(setup.factor, None if every else columns)
     diagonal = sigma[setup.factor.indptr[K[free]]]
     out[free] = 0.5 * (diagonal + np.swapaxes(diagonal, -1, -2))
     return out

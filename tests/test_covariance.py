@@ -235,3 +235,9 @@ def test_not_positive_definite_raises():
     for factorise in (cv.cholesky_factor, cv._superlu_cholesky):
         with pytest.raises(NotPositiveDefiniteError):
             factorise((indptr, indices, data), np.array([0, 1]))
+
+
+def test_poses_of_the_wrong_shape_raise():
+    graph = two_components()
+    with pytest.raises(ValueError, match="poses must have shape"):
+        cv.marginal_covariances(graph, graph.poses[:-1])
