@@ -208,7 +208,7 @@ def scaling(shape: str, sizes: list[int], timeout: float) -> list[dict]:
             print(f"{shape} {size}: over {timeout:.0f} s, stopped", file=sys.stderr)
             break
         if done.returncode != 0:
-            print(f"{shape} {size}: failed\n{done.stderr}", file=sys.stderr)
+            print(f"{shape} {size}: failed (exit status {done.returncode})\n{done.stderr}", file=sys.stderr)
             break
         row = json.loads(done.stdout.strip().splitlines()[-1])
         rows.append(row)
