@@ -30,6 +30,8 @@ _LAZY = {
     "OptimizeResult": "posegraph.solve",
     "initialize": "posegraph.init",
     "InputError": "posegraph.errors",
+    "marginal_covariances": "posegraph.covariance",
+    "joint_covariance": "posegraph.covariance",
 }
 
 __all__ = sorted(_LAZY) + ["lie"]
