@@ -7,7 +7,7 @@ Three lines from a file to an optimised file::
     result = posegraph.optimize(graph)            # chordal start, then Levenberg-Marquardt
     posegraph.write_g2o("out.g2o", graph, result.poses)
 
-The Lie-group core is in :mod:`posegraph.lie` (``so3``, ``se3``). Names below are imported on first
+The Lie-group core is in :mod:`posegraph.lie` (``so2``, ``se2``, ``so3``, ``se3``; ``group``). Names below are imported on first
 use, so ``import posegraph`` stays cheap (no scipy, gtsam, Open3D or matplotlib at start-up).
 """
 

@@ -28,7 +28,7 @@ LARGE_FILE_BYTES = 4_000_000
 """Files above this size get a line before reading: about :data:`LARGE_GRAPH_POSES` poses (the
 standard files hold ~440 bytes per pose: sphere2500 is 1.09 MB for 2,500 poses)."""
 
-OPTIONAL_MODULES = frozenset({"gtsam", "open3d", "matplotlib", "mpl_toolkits", "sksparse"})
+OPTIONAL_MODULES = frozenset({"gtsam", "open3d", "matplotlib", "mpl_toolkits"})
 """Packages some commands or options need; their absence is a usage error, not a crash."""
 
 MAX_WARNINGS_SHOWN = 20

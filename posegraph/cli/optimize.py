@@ -56,7 +56,7 @@ def run(args) -> int:
 
     status = Status(args.quiet)
     _check_outputs(args)
-    import_solver_modules()  # first: it imports scipy.sparse its own way
+    import_solver_modules()  # first: it sets one BLAS thread before numpy loads
     from posegraph.report import chi2_summary
     from posegraph.solve import optimize
 

@@ -23,8 +23,8 @@ def solver_options(p: argparse.ArgumentParser) -> None:
                    help="stop when an iteration lowers the cost by at most this much "
                         "(default: the solver's, 1e-12)")
     p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy"), default="auto",
-                   help="sparse Cholesky backend: CHOLMOD (the system library, else scikit-sparse) or scipy; auto picks "
-                        "CHOLMOD when installed")
+                   help="sparse solver: CHOLMOD (from the cvxopt wheel) or scipy's SuperLU; auto picks "
+                        "CHOLMOD when cvxopt is installed")
 
 
 def solver_params(args, callback=None):

@@ -90,8 +90,9 @@ def read_g2o(
         ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
         (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information
         (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
-        ``gtsam.readG2o`` does), ``fixed (n,)`` and ``source`` (the absolute
-        path read).
+        ``gtsam.readG2o`` does), ``fixed (n,)``, ``source`` (the absolute
+        path read), ``edge_lines (m,)`` (each edge's line in the file) and
+        ``group`` :data:`~posegraph.lie.group.SE3`.
 
     Raises
     ------
