@@ -1,7 +1,7 @@
 """One small interface to a matrix Lie group, so that the solver is written once for all of them.
 
-A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`
-today; ``se2`` and ``sim3`` modules with the same function names later) with the two sizes the
+A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`,
+:mod:`posegraph.lie.se2`; a ``sim3`` module with the same function names later) with the two sizes the
 solver needs: the tangent dimension (the block size of the normal equations) and the size of the
 matrices that represent the elements. Conventions are the project's (``docs/architecture.md``):
 right perturbations ``X ⊕ δ = X·Exp(δ)``, ``Y ⊖ X = Log(X⁻¹Y)``, right Jacobians, tangent order as
@@ -20,9 +20,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Callable
 
-from posegraph.lie import se3
+from posegraph.lie import se2, se3, so2, so3
 
-__all__ = ["LieGroup", "SE3"]
+__all__ = ["LieGroup", "SE3", "SE2"]
 
 
 @dataclass(frozen=True)
@@ -51,9 +51,25 @@ class LieGroup:
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)``, ``Exp(ξ + δ) ≈ Exp(ξ)·Exp(Jr(ξ) δ)``."""
     right_jacobian_inverse: Callable
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)⁻¹``, the Jacobian of ``Log`` under right perturbations."""
+    rotation_axes: tuple = ()
+    """Tangent indices of the rotation part (``(0, 1, 2)`` of SE(3)'s ``[ω; v]``, ``(2,)`` of SE(2)'s
+    ``[v_x, v_y, ω]``); the initialisers weigh rotations and translations by these blocks of Ω."""
+    translation_axes: tuple = ()
+    """Tangent indices of the translation part (``(3, 4, 5)`` for SE(3), ``(0, 1)`` for SE(2))."""
+    rotations: ModuleType | None = None
+    """The rotation group's module (:mod:`posegraph.lie.so3`, :mod:`posegraph.lie.so2`): ``log``,
+    ``project`` of the ``(…, r, r)`` rotation blocks, ``r = matrix_size − 1``."""
+
+    @property
+    def space_dim(self) -> int:
+        """``r = matrix_size − 1``: the dimension of the space the poses act on (3 or 2)."""
+        return self.matrix_size - 1
 
     @classmethod
-    def of(cls, name: str, module: ModuleType, dim: int, matrix_size: int) -> "LieGroup":
+    def of(
+        cls, name: str, module: ModuleType, dim: int, matrix_size: int, *,
+        rotation_axes: tuple = (), translation_axes: tuple = (), rotations: ModuleType | None = None,
+    ) -> "LieGroup":  # fmt: skip
         """The group whose functions are those of ``module`` (named as in :mod:`posegraph.lie.se3`).
 
         Each callable looks its function up in ``module`` when called, so the group always runs
@@ -61,7 +77,10 @@ class LieGroup:
         by the solver's Jacobians too); the lookup costs ~0.1 µs per batched call.
         """
         functions = {f: _forward(module, f) for f in _FUNCTIONS}
-        return cls(name=name, dim=dim, matrix_size=matrix_size, **functions)
+        return cls(
+            name=name, dim=dim, matrix_size=matrix_size, **functions,
+            rotation_axes=tuple(rotation_axes), translation_axes=tuple(translation_axes), rotations=rotations,
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         return f"LieGroup({self.name}, dim={self.dim}, matrix_size={self.matrix_size})"
@@ -80,5 +99,7 @@ def _forward(module: ModuleType, name: str) -> Callable:
 
 _FUNCTIONS = ("exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse")
 
-SE3 = LieGroup.of("SE3", se3, dim=6, matrix_size=4)
+SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3, 4, 5), rotations=so3)
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
+SE2 = LieGroup.of("SE2", se2, 3, 3, rotation_axes=(2,), translation_axes=(0, 1), rotations=so2)
+"""Rigid motions in the plane: ``(…, 3, 3)`` matrices, tangent ``[v_x, v_y, ω]``."""
