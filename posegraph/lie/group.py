@@ -27,7 +27,7 @@ __all__ = ["LieGroup", "SE3", "SE2"]
 
 @dataclass(frozen=True)
 class LieGroup:
-    """A matrix Lie group as the solver sees it: two sizes and eight batched functions."""
+    """A matrix Lie group as the solver and the initialisers see it: sizes, axes and batched functions."""
 
     name: str
     """Short name, e.g. ``"SE3"``."""
@@ -51,6 +51,9 @@ class LieGroup:
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)``, ``Exp(ξ + δ) ≈ Exp(ξ)·Exp(Jr(ξ) δ)``."""
     right_jacobian_inverse: Callable
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)⁻¹``, the Jacobian of ``Log`` under right perturbations."""
+    left_jacobian_inverse: Callable | None = None
+    """``(…, d) -> (…, d, d)``: ``Jl(ξ)⁻¹`` (the solver does not need it); at ``ξ = [ω; 0]`` its translation block is ``V(ω)⁻¹``,
+    which maps a pose's translation to the translation part of its ``Log`` (the chordal start uses it)."""
     rotation_axes: tuple = ()
     """Tangent indices of the rotation part (``(0, 1, 2)`` of SE(3)'s ``[ω; v]``, ``(2,)`` of SE(2)'s
     ``[v_x, v_y, ω]``); the initialisers weigh rotations and translations by these blocks of Ω."""
@@ -97,7 +100,10 @@ def _forward(module: ModuleType, name: str) -> Callable:
     return call
 
 
-_FUNCTIONS = ("exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse")
+_FUNCTIONS = (
+    "exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse",
+    "left_jacobian_inverse",
+)
 
 SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3, 4, 5), rotations=so3)
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
