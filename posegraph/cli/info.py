@@ -42,7 +42,7 @@ def run(args) -> int:
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     """The text output's ``(label, value)`` lines from :func:`posegraph.report.graph_info`."""
     rows = [
-        ("file", path),
+        ("file", path + ("" if info["group"] == "SE3" else " (2D: SE(2) poses)")),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "
                      + ("contiguous" if info["ids_contiguous"] else "not contiguous")
                      + f"), {info['num_fixed']} fixed"),
@@ -58,7 +58,8 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
                      f"diagonal {r['diagonal_min']:.4g} .. {r['diagonal_max']:.4g}, "
                      f"eigenvalues {r['eigenvalue_min']:.4g} .. {r['eigenvalue_max']:.4g}"))
     whole = info["information"]
-    rows.append(("information, 6x6", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
+    size = 6 if info["group"] == "SE3" else 3
+    rows.append((f"information, {size}x{size}", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
     rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (at the file's poses)"))
     return rows
