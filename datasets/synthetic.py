@@ -239,22 +239,7 @@ def _build(
     # 2. Outliers: outliers / (inliers + outliers) = outlier_fraction.
     f = noise.outlier_fraction
     num_outliers = int(round(f / (1.0 - f) * len(loops))) if f > 0 else 0
-    if num_outliers and n < 3:
-        raise ValueError(f"{name}: outliers need at least 3 poses")
-    # Random pairs, never a self-loop, an odometry pair, a true loop-closure candidate (its
-    # measurement could be nearly right) or a pair drawn twice.
-    true_codes = np.sort(loop_candidates, axis=1) @ np.array([n, 1]) if len(loop_candidates) else np.zeros(0, np.int64)
-    outlier_pairs = np.zeros((0, 2), np.int64)
-    possible = n * (n - 1) // 2 - (n - 1) - len(np.unique(true_codes))
-    if num_outliers > possible:
-        raise ValueError(f"{name}: {num_outliers} outliers asked but only {possible} vertex pairs are free")
-    while len(outlier_pairs) < num_outliers:
-        draw = np.sort(rng.integers(0, n, size=(2 * num_outliers + 8, 2)), axis=1)
-        draw = draw[draw[:, 1] - draw[:, 0] > 1]
-        draw = draw[~np.isin(draw @ np.array([n, 1]), true_codes)]
-        merged = np.concatenate([outlier_pairs, draw])
-        _, first = np.unique(merged @ np.array([n, 1]), return_index=True)
-        outlier_pairs = merged[np.sort(first)][:num_outliers]
+    outlier_pairs = _outlier_pairs(name, n, num_outliers, loop_candidates, rng)
 
     odometry_pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     pairs = np.concatenate([odometry_pairs, loops, outlier_pairs])
@@ -310,6 +295,26 @@ def _build(
         odometry=is_odometry[order],
         parameters=parameters,
     )
+
+
+def _outlier_pairs(name: str, n: int, num_outliers: int, loop_candidates: np.ndarray, rng) -> np.ndarray:
+    """``(num_outliers, 2)`` random pairs (older, newer): never a self-loop, an odometry pair, a true
+    loop-closure candidate (its measurement could be nearly right) or a pair drawn twice."""
+    if num_outliers and n < 3:
+        raise ValueError(f"{name}: outliers need at least 3 poses")
+    true_codes = np.sort(loop_candidates, axis=1) @ np.array([n, 1]) if len(loop_candidates) else np.zeros(0, np.int64)
+    outlier_pairs = np.zeros((0, 2), np.int64)
+    possible = n * (n - 1) // 2 - (n - 1) - len(np.unique(true_codes))
+    if num_outliers > possible:
+        raise ValueError(f"{name}: {num_outliers} outliers asked but only {possible} vertex pairs are free")
+    while len(outlier_pairs) < num_outliers:
+        draw = np.sort(rng.integers(0, n, size=(2 * num_outliers + 8, 2)), axis=1)
+        draw = draw[draw[:, 1] - draw[:, 0] > 1]
+        draw = draw[~np.isin(draw @ np.array([n, 1]), true_codes)]
+        merged = np.concatenate([outlier_pairs, draw])
+        _, first = np.unique(merged @ np.array([n, 1]), return_index=True)
+        outlier_pairs = merged[np.sort(first)][:num_outliers]
+    return outlier_pairs
 
 
 def _ring_neighbours(older_start: np.ndarray, newer_start: np.ndarray, ring: int, offsets=(-1, 0, 1)) -> np.ndarray:
