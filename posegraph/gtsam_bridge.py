@@ -292,13 +292,22 @@ def _start(gtsam, graph, factors, file_values, init: str, initial):
         if file_values is not None and file_values.size():
             return file_values, priors
         return poses_to_values(graph.ids, graph.poses), priors
-    if _is_planar(graph):
-        lago_graph = graph_to_gtsam(graph, diagonal=True)
-        lago_graph.push_back(priors)
-        return gtsam.lago.initialize(lago_graph), priors
-    anchored = gtsam.NonlinearFactorGraph(factors)
-    anchored.push_back(priors)
-    return gtsam.InitializePose3.initialize(anchored), priors
+    try:
+        if _is_planar(graph):
+            lago_graph = graph_to_gtsam(graph, diagonal=True)
+            lago_graph.push_back(priors)
+            return gtsam.lago.initialize(lago_graph), priors
+        anchored = gtsam.NonlinearFactorGraph(factors)
+        anchored.push_back(priors)
+        return gtsam.InitializePose3.initialize(anchored), priors
+    except (RuntimeError, IndexError) as exc:  # e.g. LAGO's "map::at" on ais2klinik, Pose3's indeterminate system
+        from posegraph.errors import GraphError
+
+        name = "lago.initialize" if _is_planar(graph) else "InitializePose3.initialize"
+        raise GraphError(
+            f"gtsam's {name} failed on this graph ({exc}); start gtsam from posegraph's poses instead "
+            "(compare --gtsam-start same)", graph.source,
+        ) from exc  # fmt: skip
 
 
 def _optimise(gtsam, full, values, method, max_iterations, relative_tolerance, absolute_tolerance):
