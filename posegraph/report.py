@@ -48,8 +48,8 @@ def graph_info(graph) -> dict:
     info["ids_contiguous"] = bool(info["id_max"] - info["id_min"] + 1 == graph.num_vertices)
 
     omega = graph.information
-    rotation, translation = list(graph.group.rotation_axes), list(graph.group.translation_axes)
-    blocks = {"rotation": omega[:, rotation][:, :, rotation], "translation": omega[:, translation][:, :, translation]}
+    rotation, translation = graph.group.rotation_block, graph.group.translation_block
+    blocks = {"rotation": omega[:, rotation, rotation], "translation": omega[:, translation, translation]}
     information: dict = {}
     for name, block in blocks.items():
         diagonal = np.diagonal(block, axis1=-2, axis2=-1)
@@ -59,7 +59,7 @@ def graph_info(graph) -> dict:
         information[name] = {"diagonal_min": lo, "diagonal_max": hi, "eigenvalue_min": elo, "eigenvalue_max": ehi}
     eigenvalues = np.linalg.eigvalsh(omega)
     information["eigenvalue_min"], information["eigenvalue_max"] = _range(eigenvalues)
-    coupling = omega[:, rotation][:, :, translation]
+    coupling = omega[:, rotation, translation]
     information["coupled_edges"] = int(np.count_nonzero(np.any(coupling != 0, axis=(1, 2))))
     info["information"] = information
     info["group"] = graph.group.name

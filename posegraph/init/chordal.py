@@ -151,7 +151,7 @@ def _translations(graph: PoseGraph, rotations: np.ndarray, problem: RelativeLeas
     offset = (to_residual @ graph.measurements[:, :r, r : r + 1])[..., 0]  # V(δ)⁻¹ R_zᵀ t_z
 
     omega_vv = translation_information(graph.information, group)
-    omega_v_omega = graph.information[:, list(group.translation_axes)][:, :, list(group.rotation_axes)]
+    omega_v_omega = graph.information[:, group.translation_block, group.rotation_block]
     weight = transfer_b.transpose(0, 2, 1) @ omega_vv @ transfer_b
     weight = 0.5 * (weight + weight.transpose(0, 2, 1))
     weighted_offset = transfer_b.transpose(0, 2, 1) @ (

@@ -49,8 +49,8 @@ that, and above double precision's 1e-16 so the Cholesky factorisation still see
 def rotation_weights(information: np.ndarray, group: LieGroup = SE3) -> np.ndarray:
     """Scalar chordal weights ``w = tr(Ω_ωω)/dim ω``, floored; ``information`` ``(m,d,d)`` → ``(m,)``."""
     information = np.asarray(information, dtype=np.float64)
-    axes = np.array(group.rotation_axes)
-    weights = np.trace(information[:, axes][:, :, axes], axis1=1, axis2=2) / axes.size
+    axes = group.rotation_block
+    weights = np.trace(information[:, axes, axes], axis1=1, axis2=2) / len(group.rotation_axes)
     if weights.size == 0:
         return weights
     largest = float(weights.max())
@@ -63,8 +63,8 @@ def rotation_weights(information: np.ndarray, group: LieGroup = SE3) -> np.ndarr
 def translation_information(information: np.ndarray, group: LieGroup = SE3) -> np.ndarray:
     """The ``(m,r,r)`` translational blocks ``Ω_vv``, symmetrised, eigenvalues floored."""
     information = np.asarray(information, dtype=np.float64)
-    axes = np.array(group.translation_axes)
-    block = information[:, axes][:, :, axes]
+    axes = group.translation_block
+    block = information[:, axes, axes]
     block = 0.5 * (block + block.transpose(0, 2, 1))
     if block.shape[0] == 0:
         return block
@@ -75,7 +75,7 @@ def translation_information(information: np.ndarray, group: LieGroup = SE3) -> n
     bound = float(traces.max())
     if bound > 0.0 and np.isfinite(bound):
         try:
-            np.linalg.cholesky(block - (WEIGHT_FLOOR * bound) * np.eye(axes.size))
+            np.linalg.cholesky(block - (WEIGHT_FLOOR * bound) * np.eye(len(group.translation_axes)))
             return block
         except np.linalg.LinAlgError:
             pass

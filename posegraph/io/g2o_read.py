@@ -30,6 +30,7 @@ from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
 
 _GROUP = {3: SE3, 2: SE2}
+"""The group of a file's poses by its space dimension (3D or 2D tags)."""
 
 
 class _Poses(NamedTuple):
@@ -314,7 +315,7 @@ def _merge_edges(
     do we; ``EDGE_SE2``'s ``[x, y, θ]`` is se(2)'s order already (``Record.information_from_upper``).
     """
     tags = _tags_of("edge", table)
-    d = 6 if next(iter(table.values())).space_dim == 3 else 3
+    d = _GROUP[next(iter(table.values())).space_dim].dim  # 6 (SE(3)) or 3 (SE(2))
     parts = _Measurements(
         ids=np.concatenate([records[tag]["ids"] for tag in tags]),
         rotations=np.concatenate([rotations[tag] for tag in tags]),

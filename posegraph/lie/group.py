@@ -64,6 +64,16 @@ class LieGroup:
     ``project`` of the ``(…, r, r)`` rotation blocks, ``r = matrix_size − 1``."""
 
     @property
+    def rotation_block(self) -> slice:
+        """``rotation_axes`` as a slice (they are contiguous in every group here), for views of Ω's blocks."""
+        return slice(self.rotation_axes[0], self.rotation_axes[-1] + 1)
+
+    @property
+    def translation_block(self) -> slice:
+        """``translation_axes`` as a slice."""
+        return slice(self.translation_axes[0], self.translation_axes[-1] + 1)
+
+    @property
     def space_dim(self) -> int:
         """``r = matrix_size − 1``: the dimension of the space the poses act on (3 or 2)."""
         return self.matrix_size - 1
