@@ -3,7 +3,8 @@
 A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`,
 :mod:`posegraph.lie.se2`; a ``sim3`` module with the same function names later) with the two sizes the
 solver needs: the tangent dimension (the block size of the normal equations) and the size of the
-matrices that represent the elements. Conventions are the project's (``docs/architecture.md``):
+matrices that represent the elements; and, for the initialisers, where the rotation and the
+translation sit in the tangent and the rotation group's module. Conventions are the project's (``docs/architecture.md``):
 right perturbations ``X ⊕ δ = X·Exp(δ)``, ``Y ⊖ X = Log(X⁻¹Y)``, right Jacobians, tangent order as
 gtsam's. Every callable takes any leading batch shape.
 
