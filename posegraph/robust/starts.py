@@ -28,7 +28,7 @@ __all__ = ["inlier_chain_start", "downweighted_chordal_start", "robust_chordal_s
 
 
 def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
-    """``(m,)`` squared whitened residuals ``s = eᵀΩe`` of every edge at ``poses`` ``(n, 4, 4)``."""
+    """``(m,)`` squared whitened residuals ``s = eᵀΩe`` of every edge at ``poses`` ``(n, k, k)``."""
     from posegraph.solve.residuals import edge_residuals
 
     e = edge_residuals(poses, graph)
@@ -92,4 +92,5 @@ def robust_chordal_start(
         chordal_initialization(graph),
         known,
         params,
+        dimension=graph.group.dim,  # the χ² thresholds: 6 for SE(3), 3 for SE(2)
     )
