@@ -1,27 +1,27 @@
 """Marginal and joint covariances of the poses, by selected inversion of the Cholesky factor.
 
 At poses ``X`` the Gauss-Newton matrix ``H = Σ_e J_eᵀ Ω_e J_e`` of the free vertices (right
-perturbations ``X_k ⊕ δ_k = X_k·Exp(δ_k)``, tangent order ``[ω; v]``, as gtsam) is the inverse of
-the Laplace approximation's covariance: ``Σ = H⁻¹``. Vertex ``k``'s marginal covariance is the
-``d×d`` diagonal block ``Σ_kk`` (``d = 6`` for SE(3)); it is what ``gtsam.Marginals(graph,
+perturbations ``X_k ⊕ δ_k = X_k·Exp(δ_k)``, the group's tangent order as gtsam: ``[ω; v]`` for
+SE(3), ``[v_x, v_y, ω]`` for SE(2)) is the inverse of the Laplace approximation's covariance:
+``Σ = H⁻¹``. Vertex ``k``'s marginal covariance is the ``d×d`` diagonal block ``Σ_kk`` (``d =
+graph.group.dim``: 6 for SE(3), 3 for SE(2)); it is what ``gtsam.Marginals(graph,
 values).marginalCovariance(key)`` returns for the same graph.
 
 Gauge. The solver holds ``FIX`` vertices and one anchor per connected component constant
 (:func:`posegraph.graph.held_vertices`); they have no variables in H. Their covariance is
 reported as **zero**: every other covariance is *relative to the held vertices* — the
 uncertainty of a pose given that its component's anchor (or the fixed vertices) is known
-exactly. It is the limit of gtsam's with a prior of vanishing σ on the held vertices (σ = 1e-6
-changes the others by ~σ²·‖Ω‖, far below the figures' precision). A different gauge (e.g. the
-anchor at another vertex) gives different marginals; covariances of *relative* poses do not
-depend on it.
+exactly. It is the limit of gtsam's with a prior of vanishing σ on the held vertices: such a
+prior changes a covariance of size ``s`` next to a held vertex by about ``σ²/s`` relative, so
+the two agree as σ → 0. A different gauge (e.g. the anchor at another vertex) gives different
+marginals; covariances of *relative* poses do not depend on it.
 
 Method (``docs/covariances.md``): H in the solver's lower-triangle layout
-(:mod:`posegraph.solve.sparsity`), a fill-reducing order of the vertex graph expanded to the
-``d×d`` blocks (so each vertex's ``d`` variables are contiguous in the permuted order), the
-Cholesky factor ``P H Pᵀ = L Lᵀ`` (CHOLMOD through cvxopt, SuperLU without pivoting as the
-fallback), then the Takahashi / Erisman–Tinney recurrence over ``L``'s block pattern
-(:func:`selected_inverse`), which yields every entry of ``Σ`` inside that pattern — all diagonal
-blocks among them — without forming any other entry.
+(:mod:`posegraph.solve.sparsity`); its Cholesky factor ``P H Pᵀ = L Lᵀ`` by the solver's own
+linear backend (:func:`factor_hessian`: CHOLMOD through cvxopt with the solver's block ordering,
+SuperLU without cvxopt); then the Takahashi / Erisman–Tinney recurrence over ``L``'s block
+pattern (:func:`selected_inverse`), which yields every entry of ``Σ`` inside that pattern — all
+diagonal blocks among them — without forming any other entry.
 """
 
 from __future__ import annotations
@@ -36,8 +36,7 @@ __all__ = [
     "marginal_covariances",
     "joint_covariance",
     "hessian_at",
-    "vertex_elimination_order",
-    "cholesky_factor",
+    "factor_hessian",
     "BlockFactor",
     "block_factor",
     "selected_inverse",
@@ -53,7 +52,7 @@ def tangent_dimension(graph) -> int:
 
 
 def hessian_at(graph, poses):
-    """The Gauss-Newton matrix at ``poses`` ``(n, 4, 4)``: ``(pattern, data)``.
+    """The Gauss-Newton matrix at ``poses`` ``(n, k, k)`` (``k`` = ``graph.group.matrix_size``): ``(pattern, data)``.
 
     ``pattern`` is the :class:`~posegraph.solve.sparsity.HessianPattern` (held vertices have no
     variables; ``pattern.variable_of`` maps vertices to block columns), ``data`` the CSC values
@@ -64,40 +63,9 @@ def hessian_at(graph, poses):
     from posegraph.solve.sparsity import analyze_pattern, hessian_values
 
     held = held_vertices(graph)
-    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held)
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, tangent_dimension(graph))
     blocks = linearize(np.asarray(poses, dtype=np.float64), graph)
     return pattern, hessian_values(pattern, blocks.hessian_blocks)
-
-
-def vertex_elimination_order(pattern) -> np.ndarray:
-    """Fill-reducing elimination order ``(p,)`` of the free vertices (``order[k]`` = block column eliminated k-th).
-
-    As the solver orders: CHOLMOD's ordering of the vertex graph (:func:`posegraph.cholmod.fill_reducing_order`,
-    AMD below / nested dissection from :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES`) when the
-    system library is there, else AMD from cvxopt's bundled copy, postordered along the elimination
-    tree (subtrees contiguous: larger supernodes); without either, SuperLU's postordered MMD
-    (:func:`posegraph.solve.linear.vertex_ordering`).
-    """
-    from posegraph import cholmod
-    from posegraph.solve import linear
-
-    p = pattern.num_variables
-    if p == 0:
-        return np.zeros(0, dtype=np.int64)
-    if cholmod.load() is not None:
-        method = cholmod.auto_ordering(p)
-        order = cholmod.fill_reducing_order(pattern.block_indptr, pattern.block_indices, p, method)
-    else:
-        try:
-            from cvxopt import amd, matrix, spmatrix
-        except ImportError:
-            return linear.vertex_ordering(pattern)
-        cols = np.repeat(np.arange(p), np.diff(pattern.block_indptr))
-        graph = spmatrix(1.0, matrix(pattern.block_indices.astype(np.int64)), matrix(cols), (p, p))
-        order = np.asarray(amd.order(graph, uplo="L"), dtype=np.int64).ravel()
-    vertex_graph = linear.vertex_graph(pattern)
-    permuted = vertex_graph[order][:, order].tocsc()
-    return order[linear.tree_postorder(linear.elimination_tree(permuted))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,79 +80,28 @@ class CSCFactor:
     """``(nnz,)`` values."""
 
 
-def cholesky_factor(lower_csc, permutation) -> tuple[CSCFactor, np.ndarray]:
-    """Cholesky factor ``L`` of ``P A Pᵀ = L Lᵀ`` (``(P A Pᵀ)[i, j] = A[perm[i], perm[j]]``).
+def factor_hessian(pattern, data, solver: str = "auto") -> tuple[CSCFactor, np.ndarray]:
+    """``(L, permutation)`` with ``H[perm][:, perm] = L Lᵀ``, by the solver's linear backend.
 
-    ``lower_csc`` = ``(indptr, indices, data)``: the lower triangle of the symmetric positive-definite
-    ``N×N`` matrix ``A``; ``permutation`` ``(N,)``. Returns ``(L, permutation)``, ``L`` exactly for
-    that permutation. CHOLMOD (cvxopt's bundled copy, supernodal LLᵀ) when cvxopt imports, with
-    ``nmethods = 1`` and ``postorder = False`` so that it factors in the given order (by default it
-    would also try AMD and postorder, and cvxopt does not return the order it used); else SuperLU
-    without pivoting (:func:`_superlu_cholesky`). Raises
-    :class:`posegraph.cholmod.NotPositiveDefiniteError` for a matrix that is not positive definite.
+    ``pattern``/``data``: H as :func:`hessian_at` returns it; ``solver`` as
+    :func:`posegraph.solve.linear.make_linear_solver` (``"auto"``: CHOLMOD through cvxopt, ordered
+    by :func:`posegraph.cholmod.auto_ordering` on the vertex graph — AMD, or METIS nested
+    dissection from 10,000 free vertices — and postordered by CHOLMOD; SuperLU without cvxopt).
+    The backend hands its factor over (``factor(release=True)``): one copy of L fewer. The order
+    keeps each vertex's ``d`` variables together (a block ordering, postordered: a vertex's
+    variables form a chain of the elimination tree); checked. Raises
+    :class:`posegraph.cholmod.NotPositiveDefiniteError` for an H that is not positive definite.
     """
-    permutation = np.asarray(permutation, dtype=np.int64)
-    try:
-        import cvxopt.cholmod  # noqa: F401
-    except ImportError:
-        return _superlu_cholesky(lower_csc, permutation), permutation
-    return _cvxopt_cholesky(lower_csc, permutation), permutation
+    from posegraph.solve.linear import make_linear_solver
 
-
-def _cvxopt_cholesky(lower_csc, permutation: np.ndarray) -> CSCFactor:
-    from cvxopt import cholmod, matrix, spmatrix
-
-    from posegraph.cholmod import NotPositiveDefiniteError
-
-    indptr, indices, data = (np.asarray(a) for a in lower_csc)
-    n = indptr.shape[0] - 1
-    cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
-    A = spmatrix(matrix(np.asarray(data, dtype=np.float64)), matrix(indices.astype(np.int64)), matrix(cols), (n, n))
-    saved = dict(cholmod.options)
-    cholmod.options.update(supernodal=2, nmethods=1, postorder=False)
-    try:
-        F = cholmod.symbolic(A, p=matrix(permutation), uplo="L")
-        cholmod.numeric(A, F)
-        L = cholmod.getfactor(F)
-    except ArithmeticError as err:  # cvxopt raises ArithmeticError when A is not positive definite
-        raise NotPositiveDefiniteError(str(err)) from err
-    finally:
-        cholmod.options.clear()
-        cholmod.options.update(saved)
-    colptr, rows, values = L.CCS
-    return CSCFactor(
-        np.asarray(colptr, dtype=np.int64).ravel(),
-        np.asarray(rows, dtype=np.int64).ravel(),
-        np.asarray(values, dtype=np.float64).ravel(),
-    )
-
-
-def _superlu_cholesky(lower_csc, permutation: np.ndarray) -> CSCFactor:
-    """``L = L_unit · diag(√u_kk)`` from SuperLU's ``P A Pᵀ = L_unit U`` with natural order and no pivoting.
-
-    On a symmetric positive-definite matrix LU without pivoting is ``U = D L_unitᵀ``, so this is
-    the Cholesky factor. The row/column permutations SuperLU reports are checked to be the identity.
-    """
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    from posegraph.cholmod import NotPositiveDefiniteError
-
-    indptr, indices, data = lower_csc
-    n = len(indptr) - 1
-    lower = sp.csc_matrix((data, indices, indptr), shape=(n, n))
-    full = (lower + sp.tril(lower, k=-1).T).tocsc()[permutation][:, permutation].tocsc()
-    try:
-        lu = splu(full, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    except RuntimeError as err:
-        raise NotPositiveDefiniteError(str(err)) from err
-    identity = np.arange(n)
-    pivots = lu.U.diagonal()
-    if not (np.array_equal(lu.perm_r, identity) and np.array_equal(lu.perm_c, identity)) or np.any(pivots <= 0):
-        raise NotPositiveDefiniteError("SuperLU pivoted or met a non-positive pivot: the matrix is not positive definite")
-    L = (lu.L @ sp.diags(np.sqrt(pivots))).tocsc()
-    L.sort_indices()
-    return CSCFactor(L.indptr.astype(np.int64), L.indices.astype(np.int64), L.data)
+    backend = make_linear_solver(solver, pattern, "auto", blas_threads=1)
+    backend.factorize(data)
+    indptr, indices, values, permutation = backend.factor(release=True)
+    d = pattern.block_size
+    blocks = permutation.reshape(-1, d)
+    if np.any(blocks % d != np.arange(d)) or np.any(blocks // d != blocks[:, :1] // d):
+        raise RuntimeError("the factor's order splits a vertex's variables: not a block ordering")
+    return CSCFactor(indptr, indices, values), permutation
 
 
 @dataclass(frozen=True, eq=False)
@@ -450,10 +367,6 @@ def _minus_sigma_product(factor: BlockFactor, sigma: np.ndarray, S: np.ndarray, 
     if np.any(position < 0):
         raise RuntimeError("factor pattern is not closed under elimination: a block of Σ_SS is missing")
     gathered = sigma[position].transpose(0, 1, 3, 2, 4).reshape(g, m * d, m * d)
-    if g == 1:
-        from scipy.linalg.blas import dsymm
-
-        return dsymm(-1.0, gathered[0], B[0], lower=1)[None]
     lower = np.tril(gathered)
     return -((lower + np.swapaxes(np.tril(lower, -1), -1, -2)) @ B)
 
@@ -467,18 +380,14 @@ class _Factorisation:
 
 
 def _factorise(graph, poses, keep_scalar: bool = False) -> _Factorisation:
-    from posegraph.cholmod import block_permutation
-
     d = tangent_dimension(graph)
     if np.shape(poses) != np.shape(graph.poses):
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
-    if pattern.dimension != d * pattern.num_variables:
-        raise ValueError(f"Hessian blocks are {pattern.dimension // max(pattern.num_variables, 1)}, expected {d}")
-    order = vertex_elimination_order(pattern)
-    L, _ = cholesky_factor((pattern.indptr, pattern.indices, data), block_permutation(order, d))
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.shape[0])
+    L, permutation = factor_hessian(pattern, data)
+    del data
+    rank = np.empty(pattern.num_variables, dtype=np.int64)
+    rank[permutation[::d] // d] = np.arange(pattern.num_variables)  # block column of each variable
     free = pattern.variable_of >= 0
     position = np.full(graph.num_vertices, -1, dtype=np.int64)
     position[free] = rank[pattern.variable_of[free]]
@@ -526,7 +435,7 @@ def _vertex_indices(graph, vertices) -> np.ndarray:
 def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     """Marginal covariance of each requested vertex's pose: ``(k, d, d)``.
 
-    ``poses`` ``(n, 4, 4)``: the point of linearisation (normally the optimised poses);
+    ``poses`` ``(n, k, k)`` (as ``graph.poses``): the point of linearisation (normally the optimised poses);
     ``vertices``: ``(k,)`` vertex *indices* (``graph.index_of(ids)`` for ids), all vertices when
     ``None``. Block ``k`` is ``Cov(δ)`` of ``X_k ⊕ δ = X_k·Exp(δ)``, tangent order ``[ω; v]`` —
     the convention of ``gtsam.Marginals.marginalCovariance``. Held vertices (``FIX`` and component
