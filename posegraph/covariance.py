@@ -379,12 +379,12 @@ class _Factorisation:
     """``(n,)`` block column of each vertex in elimination order, ``-1`` for held vertices."""
 
 
-def _factorise(graph, poses, keep_scalar: bool = False) -> _Factorisation:
+def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") -> _Factorisation:
     d = tangent_dimension(graph)
     if np.shape(poses) != np.shape(graph.poses):
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
-    L, permutation = factor_hessian(pattern, data)
+    L, permutation = factor_hessian(pattern, data, solver)
     del data
     rank = np.empty(pattern.num_variables, dtype=np.int64)
     rank[permutation[::d] // d] = np.arange(pattern.num_variables)  # block column of each variable

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Callable
 
-from posegraph.lie import se3
+from posegraph.lie import se2, se3
 
-__all__ = ["LieGroup", "SE3"]
+__all__ = ["LieGroup", "SE3", "SE2"]
 
 
 @dataclass(frozen=True)
@@ -82,3 +82,5 @@ _FUNCTIONS = ("exp", "log", "inverse", "compose", "between", "adjoint", "right_j
 
 SE3 = LieGroup.of("SE3", se3, dim=6, matrix_size=4)
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
+SE2 = LieGroup.of("SE2", se2, dim=3, matrix_size=3)
+"""Rigid motions in the plane: ``(…, 3, 3)`` matrices, tangent ``[v_x, v_y, ω]``."""
