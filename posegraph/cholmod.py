@@ -259,9 +259,10 @@ class SparseCholesky:
         return indptr.astype(np.int64, copy=False), indices.astype(np.int64, copy=False), data, permutation.copy()
 
     def close(self) -> None:
-        """Drop the factor now (otherwise when the object is collected)."""
+        """Drop the factor and the copy of the matrix now (otherwise when the object is collected)."""
         self._factorized = False
         self._symbolic = None
+        self._matrix = None
 
 
 NESTED_DISSECTION_VERTICES = 10_000

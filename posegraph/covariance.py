@@ -92,12 +92,22 @@ def factor_hessian(pattern, data, solver: str = "auto") -> tuple[CSCFactor, np.n
     variables form a chain of the elimination tree); checked. Raises
     :class:`posegraph.cholmod.NotPositiveDefiniteError` for an H that is not positive definite.
     """
+    backend = _factorised(pattern, data, solver)
+    return _handed_over(backend, pattern.block_size)
+
+
+def _factorised(pattern, data, solver: str):
+    """The solver's linear backend for ``pattern``, factorised with ``data``."""
     from posegraph.solve.linear import make_linear_solver
 
     backend = make_linear_solver(solver, pattern, "auto", blas_threads=1)
     backend.factorize(data)
+    return backend
+
+
+def _handed_over(backend, d: int) -> tuple[CSCFactor, np.ndarray]:
+    """``(L, permutation)`` from a factorised backend, which gives its factor up; the order checked."""
     indptr, indices, values, permutation = backend.factor(release=True)
-    d = pattern.block_size
     blocks = permutation.reshape(-1, d)
     if np.any(blocks % d != np.arange(d)) or np.any(blocks // d != blocks[:, :1] // d):
         raise RuntimeError("the factor's order splits a vertex's variables: not a block ordering")
@@ -275,7 +285,7 @@ def supernodes(factor: BlockFactor, relaxed: bool = True) -> np.ndarray:
     return np.asarray(merged + [p], dtype=np.int64)
 
 
-def selected_inverse(factor: BlockFactor, columns=None) -> np.ndarray:
+def selected_inverse(factor: BlockFactor, columns=None, overwrite: bool = False) -> np.ndarray:
     """``Σ = (L Lᵀ)⁻¹`` on the block pattern of ``L``: ``(b, d, d)``, block ``b`` = ``Σ[rows[b], columns[b]]``.
 
     Takahashi, Fagan & Chin (1973) / Erisman & Tinney (1975) recurrence, in block form as in Lin et
@@ -292,30 +302,58 @@ def selected_inverse(factor: BlockFactor, columns=None) -> np.ndarray:
     ``(i, j)`` a block of ``L``) and belongs to later supernodes, already done. Each supernode is a
     few dense products of size ``(|S| + |D|)·d``. ``columns``: only the supernodes holding these
     block columns or their elimination-tree ancestors (:func:`ancestor_closure`) are visited, enough
-    for these columns' blocks; the other blocks of the result stay zero. ``None``: all.
+    for these columns' blocks; the other blocks of the result are zero. ``None``: all.
+
+    ``overwrite``: Σ is written over ``factor.values`` (returned; the factor is then spent), which
+    saves a copy of L's size: each supernode's blocks of ``L`` are read by that supernode's step
+    alone, before it writes its Σ blocks in their place.
     """
     starts = supernodes(factor)
-    sigma = np.zeros_like(factor.values)
+    sigma = factor.values if overwrite else np.zeros_like(factor.values)
     visit = np.arange(starts.shape[0] - 1)
     if columns is not None:
         visit = np.unique(np.searchsorted(starts, ancestor_closure(factor, columns), side="right") - 1)
+        if overwrite:  # the blocks of the supernodes not visited keep L's values: zero them
+            supernode = np.searchsorted(starts, factor.columns, side="right") - 1
+            sigma[~np.isin(supernode, visit)] = 0.0
     first, last = starts[visit], starts[visit + 1] - 1
     width = last - first + 1
     height = width + np.diff(factor.indptr)[last] - 1
-    # Supernodes no other visited supernode descends from are needed by none: done last, in
-    # batches of equal shape (on sphere2500 about half the supernodes, most 1 column × 5 rows).
+    # Supernodes at one depth of the supernodal tree do not depend on each other: done top down,
+    # one batch per depth and shape. Those no other visited supernode descends from are needed by
+    # none: done last, batched by shape alone (on sphere2500 about half, most 1 column × 5 rows).
     parent = factor.parents()[last]
-    node_of = np.searchsorted(first, parent, side="right") - 1  # visited supernode holding the parent
+    node_of = np.where(parent >= 0, np.searchsorted(first, parent, side="right") - 1, -1)  # parent's supernode
     has_child = np.zeros(visit.shape[0], dtype=bool)
-    has_child[node_of[(parent >= 0) & (node_of >= 0)]] = True
-    for k in np.flatnonzero(has_child)[::-1].tolist():
-        _update_supernodes(factor, sigma, first[k : k + 1], int(width[k]), int(height[k]))
+    has_child[node_of[node_of >= 0]] = True
+    shape = width * (int(height.max(initial=0)) + 1) + height
+    inner = np.flatnonzero(has_child)
+    for group in _groups(_depths(node_of)[inner] * (int(shape.max(initial=0)) + 1) + shape[inner]):
+        batch = inner[group]
+        _update_supernodes(factor, sigma, first[batch], int(width[batch[0]]), int(height[batch[0]]))
     leaves = np.flatnonzero(~has_child)
-    shape = width[leaves] * (int(height.max(initial=0)) + 1) + height[leaves]
-    for key in np.unique(shape).tolist():
-        batch = leaves[shape == key]
+    for group in _groups(shape[leaves]):
+        batch = leaves[group]
         _update_supernodes(factor, sigma, first[batch], int(width[batch[0]]), int(height[batch[0]]))
     return sigma
+
+
+def _depths(parent: np.ndarray) -> np.ndarray:
+    """Depth of each node of a forest whose parents come after their children (``-1``: a root)."""
+    depth = np.zeros(parent.shape[0], dtype=np.int64)
+    for k, up in zip(range(parent.shape[0] - 1, -1, -1), parent[::-1].tolist()):
+        if up >= 0:
+            depth[k] = depth[up] + 1
+    return depth
+
+
+def _groups(keys: np.ndarray) -> list[np.ndarray]:
+    """Indices of equal ``keys``, one array per key, keys ascending."""
+    if keys.size == 0:
+        return []
+    order = np.argsort(keys, kind="stable")
+    cuts = np.flatnonzero(np.diff(keys[order])) + 1
+    return np.split(order, cuts)
 
 
 def _update_supernodes(factor: BlockFactor, sigma: np.ndarray, first: np.ndarray, width: int, height: int) -> None:
@@ -403,13 +441,16 @@ def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") ->
     if np.shape(poses) != np.shape(graph.poses):
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
-    L, permutation = factor_hessian(pattern, data, solver)
-    del data
-    rank = np.empty(pattern.num_variables, dtype=np.int64)
-    rank[permutation[::d] // d] = np.arange(pattern.num_variables)  # block column of each variable
-    free = pattern.variable_of >= 0
+    variable_of, p = pattern.variable_of, pattern.num_variables
+    backend = _factorised(pattern, data, solver)
+    del pattern, data  # H's arrays go before cvxopt copies L (the peak of memory)
+    L, permutation = _handed_over(backend, d)
+    del backend
+    rank = np.empty(p, dtype=np.int64)
+    rank[permutation[::d] // d] = np.arange(p)  # block column of each variable
+    free = variable_of >= 0
     position = np.full(graph.num_vertices, -1, dtype=np.int64)
-    position[free] = rank[pattern.variable_of[free]]
+    position[free] = rank[variable_of[free]]
     factor = block_factor(L, d)
     if not keep_scalar:  # the blocks hold the same numbers: let the scalar copy go
         factor = dataclasses.replace(factor, scalar=None)
@@ -475,7 +516,7 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
         free = K >= 0
         columns = np.unique(K[free])
         every = columns.shape[0] == setup.factor.indptr.shape[0] - 1
-        sigma = selected_inverse(setup.factor, None if every else columns)
+        sigma = selected_inverse(setup.factor, None if every else columns, overwrite=True)
     diagonal = sigma[setup.factor.indptr[K[free]]]
     out[free] = 0.5 * (diagonal + np.swapaxes(diagonal, -1, -2))
     return out
@@ -506,7 +547,7 @@ def joint_covariance(graph, poses, vertices) -> np.ndarray:
         K = setup.position[vertices[free]]
         position = setup.factor.find(np.maximum.outer(K, K), np.minimum.outer(K, K))
         if np.all(position >= 0):
-            blocks = selected_inverse(setup.factor, np.unique(K))[position]  # Σ[max, min]
+            blocks = selected_inverse(setup.factor, np.unique(K), overwrite=True)[position]  # Σ[max, min]
             upper = K[:, None] < K[None, :]
             blocks[upper] = np.swapaxes(blocks[upper], -1, -2)
         else:
