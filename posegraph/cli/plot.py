@@ -7,7 +7,7 @@ import os
 from posegraph.cli.common import (
     EXIT_OK, Status, UsageError, check_figure, check_inputs, display_name, read_graph, repair_option,
 )
-from posegraph.cli.common import non_negative_float
+from posegraph.cli.common import non_negative_float, positive_int
 
 NAME = "plot"
 HELP = "draw trajectories in 3D (PNG, PDF, SVG), or a top view with uncertainty ellipses"
@@ -38,7 +38,7 @@ def add_arguments(p) -> None:
                         "x-y position in the world frame, from the translation block of COV.npz's tangent "
                         "covariance (SE(3): the v of [ω; v], in the body frame, rotated by the pose's rotation; "
                         "SE(2): [x, y] of [x, y, θ]); 'posegraph optimize --covariances' writes it")
-    p.add_argument("--every", type=_positive_int, default=1, metavar="K",
+    p.add_argument("--every", type=positive_int, default=1, metavar="K",
                    help="with --covariances: an ellipse for every K-th pose (file order; default 1)")
     p.add_argument("--scale", type=non_negative_float, default=None, metavar="S",
                    help="with --covariances: multiply the 1-sigma semi-axes by S (default: the largest ellipse "
@@ -72,18 +72,6 @@ def _check_covariance_options(args) -> None:
         raise UsageError("--every and --scale apply to --covariances")
     if args.scale == 0:
         raise UsageError("--scale must be > 0")
-
-
-def _positive_int(text: str) -> int:
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1: {text}")
-    return value
 
 
 def read_covariances(path: str, graph):
