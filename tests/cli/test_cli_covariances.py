@@ -122,3 +122,23 @@ def test_plot_refuses_covariances_of_another_graph(optimized, tmp_path, shared_d
     assert_one_error_line(run_cli("plot", shared_dataset("tinyGrid3D"), "-o", figure, "--every", "2"),
                           "--covariances")
     assert not figure.exists()
+
+
+def test_covariances_take_the_gauge_of_fix(tmp_path, shared_dataset):
+    """``--fix ID`` holds that vertex instead of the component's anchor: its covariance is the zero one."""
+    import dataclasses
+
+    source = shared_dataset("tinyGrid3D")
+    out, cov = tmp_path / "out.g2o", tmp_path / "cov.npz"
+    assert run_cli("optimize", source, "-o", out, "--covariances", cov, "--fix", "3", "-q").returncode == 0
+    graph = read_g2o(source)
+    fixed = graph.fixed.copy()
+    fixed[graph.index_of([3])] = True
+    held_graph = dataclasses.replace(graph, fixed=fixed)
+    with np.load(cov) as data:
+        covariances = data["covariances"]
+    zero = [k for k in range(graph.num_vertices) if not covariances[k].any()]
+    assert zero == graph.index_of([3]).tolist()
+    expected = marginal_covariances(held_graph, read_g2o(out).poses)
+    scale = np.abs(expected).max()
+    assert np.abs(covariances - expected).max() <= 1e-6 * scale
