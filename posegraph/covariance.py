@@ -495,10 +495,11 @@ def _vertex_indices(graph, vertices) -> np.ndarray:
 def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     """Marginal covariance of each requested vertex's pose: ``(k, d, d)``.
 
-    ``poses`` ``(n, k, k)`` (as ``graph.poses``): the point of linearisation (normally the optimised poses);
-    ``vertices``: ``(k,)`` vertex *indices* (``graph.index_of(ids)`` for ids), all vertices when
-    ``None``. Block ``k`` is ``Cov(δ)`` of ``X_k ⊕ δ = X_k·Exp(δ)``, tangent order ``[ω; v]`` —
-    the convention of ``gtsam.Marginals.marginalCovariance``. Held vertices (``FIX`` and component
+    ``poses``: shaped as ``graph.poses``, the point of linearisation (normally the optimised
+    poses); ``vertices``: ``(k,)`` vertex *indices* (``graph.index_of(ids)`` for ids), all vertices
+    when ``None``; ``d = graph.group.dim``. Block ``a`` is ``Cov(δ)`` of ``X ⊕ δ = X·Exp(δ)`` for
+    ``X`` the pose of ``vertices[a]``, in the group's tangent order (``[ω; v]`` for SE(3),
+    ``[v_x, v_y, ω]`` for SE(2)) — the convention of ``gtsam.Marginals.marginalCovariance``. Held vertices (``FIX`` and component
     anchors) get zero: the gauge is theirs, the others' covariances are relative to them (module
     docstring). Cost: one sparse Cholesky and the selected inversion over the requested
     vertices' block columns and their elimination-tree ancestors (:func:`selected_inverse`).
