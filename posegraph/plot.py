@@ -11,7 +11,9 @@ optimised result.
 
 3D graphs (poses ``(n, 4, 4)``) are drawn on 3D axes; 2D graphs (``(n, 3, 3)``, SE(2)) as a top
 view of the x–y plane with equal scales. When 2D and 3D graphs are overlaid, the 2D ones are
-drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`).
+drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`). ``top_view`` draws 3D
+graphs from above (x–y); uncertainty ellipses (:func:`draw_uncertainty_ellipses`, from
+:func:`posegraph.covariance.marginal_covariances`) are drawn on such a top view.
 """
 
 from __future__ import annotations

@@ -142,3 +142,16 @@ def test_covariances_take_the_gauge_of_fix(tmp_path, shared_dataset):
     expected = marginal_covariances(held_graph, read_g2o(out).poses)
     scale = np.abs(expected).max()
     assert np.abs(covariances - expected).max() <= 1e-6 * scale
+
+
+def test_planar_position_covariance_of_an_se2_pose():
+    """SE(2): ``[v_x, v_y, ω]``, the first two entries rotated to the world frame."""
+    from posegraph.lie import se2
+    from posegraph.plot import planar_translation_covariances
+
+    pose = se2.from_xytheta(np.array([1.0, 2.0, np.pi / 2]))
+    covariance = np.array([[4.0, 0.0, 0.3], [0.0, 1.0, 0.0], [0.3, 0.0, 0.5]])
+    np.testing.assert_allclose(planar_translation_covariances(pose[None], covariance[None])[0], np.diag([1.0, 4.0]),
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="do not match"):
+        planar_translation_covariances(pose[None], np.zeros((1, 6, 6)))
