@@ -442,10 +442,14 @@ def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") ->
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
     variable_of, p = pattern.variable_of, pattern.num_variables
-    backend = _factorised(pattern, data, solver)
-    del pattern, data  # H's arrays go before cvxopt copies L (the peak of memory)
-    L, permutation = _handed_over(backend, d)
-    del backend
+    if p == 0:  # every vertex held: nothing to factorise
+        empty = np.zeros(0, dtype=np.int64)
+        L, permutation = CSCFactor(np.zeros(1, dtype=np.int64), empty, np.zeros(0)), empty
+    else:
+        backend = _factorised(pattern, data, solver)
+        del pattern, data  # H's arrays go before cvxopt copies L (the peak of memory)
+        L, permutation = _handed_over(backend, d)
+        del backend
     rank = np.empty(p, dtype=np.int64)
     rank[permutation[::d] // d] = np.arange(p)  # block column of each variable
     free = variable_of >= 0

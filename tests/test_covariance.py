@@ -334,3 +334,10 @@ def test_poses_of_the_wrong_shape_raise():
     graph = two_components()
     with pytest.raises(ValueError, match="poses must have shape"):
         cv.marginal_covariances(graph, graph.poses[:-1])
+
+
+def test_a_graph_with_every_vertex_held_has_zero_covariances():
+    graph = two_components()
+    graph = dataclasses.replace(graph, fixed=np.ones(graph.num_vertices, dtype=bool))
+    assert np.all(cv.marginal_covariances(graph, graph.poses) == 0.0)
+    assert np.all(cv.joint_covariance(graph, graph.poses, [0, 5]) == 0.0)
