@@ -92,7 +92,7 @@ def routes(name: str, chunks: int = 3) -> dict:
     """Seconds of the alternative routes to all marginals on one dataset, at our optimum.
 
     ``selected_inversion``: :func:`marginal_covariances`. ``superlu_factor``: the same with the
-    SuperLU fallback factor. ``block_solves``: the CHOLMOD factor, then ``6`` right-hand sides per
+    SuperLU fallback backend (``linear_solver="scipy"``). ``block_solves``: the CHOLMOD factor, then ``6`` right-hand sides per
     pose through ``cvxopt.cholmod.solve`` in chunks of 100 poses; ``chunks`` of them are timed and
     the total extrapolated (all of them would be ``p / 100``). ``gtsam``: as in :func:`compare`.
     """
@@ -109,11 +109,8 @@ def routes(name: str, chunks: int = 3) -> dict:
     out["selected_inversion"] = time.perf_counter() - start
     with cv._one_blas_thread():
         start = time.perf_counter()
-        cholesky, cv.cholesky_factor = cv.cholesky_factor, lambda lower, perm: (cv._superlu_cholesky(lower, perm), perm)
-        try:
-            cv.marginal_covariances(graph, poses)
-        finally:
-            cv.cholesky_factor = cholesky
+        setup = cv._factorise(graph, poses, solver="scipy")
+        cv.selected_inverse(setup.factor)
         out["superlu_factor"] = time.perf_counter() - start
         start = time.perf_counter()
         pattern, data = cv.hessian_at(graph, poses)
@@ -162,23 +159,24 @@ def worker(shape: str, size: int) -> dict:
 
     from datasets.synthetic import generate
     from posegraph import covariance as cv
-    from posegraph.cholmod import block_permutation
+    from posegraph.cholmod import auto_ordering
 
     dataset = generate(shape, size, seed=0)
     graph, poses = dataset.graph, dataset.ground_truth
+    d = graph.group.dim
     reset = _peak_reset()
     steps, start = {}, time.perf_counter()
     with cv._one_blas_thread():
         pattern, data = cv.hessian_at(graph, poses)
+        ordering = auto_ordering(pattern.num_variables)
         steps["hessian"] = time.perf_counter() - start
-        order = cv.vertex_elimination_order(pattern)
-        steps["ordering"] = time.perf_counter() - start - sum(steps.values())
-        L, _ = cv.cholesky_factor((pattern.indptr, pattern.indices, data), block_permutation(order, 6))
+        L, _ = cv.factor_hessian(pattern, data)  # ordering, analysis, numeric factorisation, getfactor
+        del pattern, data
         steps["cholesky"] = time.perf_counter() - start - sum(steps.values())
-        factor = cv.block_factor(L, 6)
         nnz = int(L.data.shape[0])
+        factor = cv.block_factor(L, d)
         factor = replace(factor, scalar=None)  # as marginal_covariances: only the blocks are kept
-        del L, pattern, data
+        del L
         steps["blocks"] = time.perf_counter() - start - sum(steps.values())
         sigma = cv.selected_inverse(factor)
         steps["selected_inversion"] = time.perf_counter() - start - sum(steps.values())
@@ -188,6 +186,7 @@ def worker(shape: str, size: int) -> dict:
         "shape": shape,
         "poses": graph.num_vertices,
         "edges": graph.num_edges,
+        "ordering": ordering,
         "nnz_L": nnz,
         "blocks_L": factor.num_blocks,
         "supernodes": int(cv.supernodes(factor).shape[0] - 1),

@@ -176,6 +176,8 @@ class SparseCholesky:
         """
         from cvxopt import matrix
 
+        if self._symbolic is None:
+            raise RuntimeError("the factor was closed (close() or factor(release=True)); build a new SparseCholesky")
         data = np.asarray(data, dtype=np.float64)
         if data.shape != (self.nnz,):
             raise ValueError(f"data must have shape ({self.nnz},), got {data.shape}")
@@ -228,29 +230,39 @@ class SparseCholesky:
             self._permutation = np.rint(positions).astype(np.int64)
         return self._permutation
 
-    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The factor of the last factorised ``A``: ``(indptr, indices, data, permutation)``.
 
         ``indptr`` ``(n+1,)``, ``indices`` ``(nnz_L,)`` int64 and ``data`` ``(nnz_L,)``: L, lower
-        triangular, as CSC (rows sorted, diagonal first in each column); ``permutation`` ``(n,)``
-        as :attr:`permutation`, so that ``A[perm][:, perm] = L Lᵀ``. cvxopt's ``getfactor``
-        turns the factor it reads into a symbolic one, so L is computed on a second factor
-        analysed with that permutation as given (one more analysis and numeric factorisation);
-        this object's own factor stays usable.
+        triangular, as CSC (rows sorted, diagonal first in each column; the explicit zeros of
+        CHOLMOD's amalgamated supernodes included); ``permutation`` ``(n,)`` as :attr:`permutation`,
+        so that ``A[perm][:, perm] = L Lᵀ``. cvxopt's ``getfactor`` turns the factor it reads into a
+        symbolic one. By default L is therefore computed on a second factor analysed with that
+        permutation as given (one more analysis and numeric factorisation) and this object stays
+        usable. ``release=True`` hands over this object's own factor instead — no second
+        factorisation, one copy of L fewer in memory — after which it is closed (:meth:`close`).
         """
         permutation = self.permutation
         cholmod = self._cholmod
         with _options(cholmod, supernodal=2, postorder=False, nmethods=1), self._threads:
-            second = cholmod.symbolic(self._matrix, p=_as_index_matrix(permutation), uplo="L")
-            cholmod.numeric(self._matrix, second)
-            lower = cholmod.getfactor(second)
-        indptr, indices, data = (np.array(part).ravel() for part in lower.CCS)
-        return indptr.astype(np.int64), indices.astype(np.int64), data.astype(np.float64), permutation.copy()
+            if release:
+                source = self._symbolic
+                self.close()
+            else:
+                source = cholmod.symbolic(self._matrix, p=_as_index_matrix(permutation), uplo="L")
+                cholmod.numeric(self._matrix, source)
+            lower = cholmod.getfactor(source)
+        del source  # symbolic now: getfactor moved L out of it
+        parts = lower.CCS  # cvxopt copies here; the views below do not
+        del lower
+        indptr, indices, data = (np.asarray(part).ravel() for part in parts)
+        return indptr.astype(np.int64, copy=False), indices.astype(np.int64, copy=False), data, permutation.copy()
 
     def close(self) -> None:
-        """Drop the factor now (otherwise when the object is collected)."""
+        """Drop the factor and the copy of the matrix now (otherwise when the object is collected)."""
         self._factorized = False
         self._symbolic = None
+        self._matrix = None
 
 
 NESTED_DISSECTION_VERTICES = 10_000

@@ -11,7 +11,9 @@ optimised result.
 
 3D graphs (poses ``(n, 4, 4)``) are drawn on 3D axes; 2D graphs (``(n, 3, 3)``, SE(2)) as a top
 view of the x–y plane with equal scales. When 2D and 3D graphs are overlaid, the 2D ones are
-drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`).
+drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`). ``top_view`` draws 3D
+graphs from above (x–y); uncertainty ellipses (:func:`draw_uncertainty_ellipses`, from
+:func:`posegraph.covariance.marginal_covariances`) are drawn on such a top view.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ import numpy as np
 from posegraph.atomic import atomic_path
 from posegraph.lie import se2
 
-__all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories"]
+__all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances",
+           "draw_uncertainty_ellipses"]
 
 # Colour-blind-safe qualitative palette (Okabe & Ito 2008), cycled for more graphs.
 _COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
@@ -51,14 +54,18 @@ def trajectory_figure(
     title: str | None = None,
     size_inches: tuple[float, float] = (8.0, 6.5),
     dpi: int = 120,
+    top_view: bool = False,
+    uncertainty: dict | None = None,
 ):
     """A matplotlib ``Figure`` with one axes showing every graph's trajectory.
 
     ``graphs``: :class:`~posegraph.graph.PoseGraph` objects; ``labels``: legend entries (default
     the graphs' ``source`` or ``graph k``); ``poses``: per graph an ``(n, 4, 4)`` or ``(n, 3, 3)``
     array to draw instead of ``graph.poses`` (or None). 3D axes when any graph is 3D, a top view
-    when all are 2D (module docstring). Axes share one scale in every direction so that shapes
-    are not distorted.
+    when all are 2D (module docstring), or with ``top_view`` (3D graphs projected on x–y). Axes
+    share one scale in every direction so that shapes are not distorted. ``uncertainty``: keyword
+    arguments of :func:`draw_uncertainty_ellipses` (``covariances`` and optionally ``every``,
+    ``scale``) for the first graph, drawn on a top view.
     """
     require_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -72,7 +79,7 @@ def trajectory_figure(
     if not (len(labels) == len(poses) == len(graphs)):
         raise ValueError("graphs, labels and poses must have the same length")
     poses = [graph.poses if X is None else np.asarray(X, dtype=np.float64) for graph, X in zip(graphs, poses)]
-    planar = all(X.shape[-1] == 3 for X in poses)
+    planar = top_view or uncertainty is not None or all(X.shape[-1] == 3 for X in poses)
     if not planar:
         poses = [se2.to_se3(X) if X.shape[-1] == 3 else X for X in poses]
 
@@ -81,23 +88,27 @@ def trajectory_figure(
     ax = fig.add_subplot() if planar else fig.add_subplot(projection="3d")
     lows, highs = [], []
     for k, (graph, label, X) in enumerate(zip(graphs, labels, poses)):
-        positions = X[:, :-1, -1]
+        positions = X[:, :2, -1] if planar else X[:, :-1, -1]
         _draw_graph(ax, graph, positions, _COLOURS[k % len(_COLOURS)], label, loop_closures)
         if len(positions):
             lows.append(positions.min(axis=0))
             highs.append(positions.max(axis=0))
     _equal_scales(ax, lows, highs)
+    handles, names = ax.get_legend_handles_labels()
+    if uncertainty is not None and graphs:
+        from matplotlib.patches import Ellipse
+
+        scale = draw_uncertainty_ellipses(ax, poses[0], **uncertainty)
+        handles.append(Ellipse((0, 0), 1, 0.6, facecolor="none", edgecolor=ELLIPSE_COLOUR))
+        names.append(f"1σ position ellipses ×{scale:.3g}")
     if title:
         ax.set_title(title)
     if loop_closures:
         from matplotlib.lines import Line2D
 
-        handles, names = ax.get_legend_handles_labels()
         handles.append(Line2D([], [], color="0.5", alpha=0.5, linewidth=0.8))
         names.append("loop closures (faint)")
-        ax.legend(handles, names, loc="upper left", fontsize="small")
-    else:
-        ax.legend(loc="upper left", fontsize="small")
+    ax.legend(handles, names, loc="upper left", fontsize="small")
     fig.tight_layout()
     return fig
 
@@ -138,6 +149,63 @@ def _equal_scales(ax, lows: list, highs: list) -> None:
             ax.set_aspect("equal", adjustable="box")
     for name, set_label in zip("xyz", (ax.set_xlabel, ax.set_ylabel, getattr(ax, "set_zlabel", None))[:d]):
         set_label(name)
+
+
+def planar_translation_covariances(poses: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """``(n, 2, 2)`` world-frame covariance of each pose's x–y position, from its tangent covariance.
+
+    ``poses`` ``(n, 4, 4)`` with ``covariances`` ``(n, 6, 6)`` in gtsam's SE(3) order ``[ω; v]``, or
+    ``(n, 3, 3)`` with ``(n, 3, 3)`` in SE(2)'s ``[v_x, v_y, ω]``. Under the right perturbation
+    ``X·Exp(δ)`` the position moves by ``R·v`` to first order (``R`` the pose's rotation, ``v`` the
+    translational part of ``δ``, in the body frame), so the position's covariance is ``R Σ_vv Rᵀ``;
+    its x–y block is returned (the top view).
+    """
+    poses, covariances = np.asarray(poses, dtype=np.float64), np.asarray(covariances, dtype=np.float64)
+    k = poses.shape[-1] - 1  # 3 for SE(3), 2 for SE(2)
+    d = covariances.shape[-1]
+    if poses.shape[0] != covariances.shape[0] or (k, d) not in ((3, 6), (2, 3)):
+        raise ValueError(f"poses {poses.shape} and covariances {covariances.shape} do not match: expected "
+                         "(n, 4, 4) with (n, 6, 6) or (n, 3, 3) with (n, 3, 3)")
+    v = slice(3, 6) if d == 6 else slice(0, 2)
+    R = poses[:, :k, :k]
+    world = R @ covariances[:, v, v] @ np.swapaxes(R, -1, -2)
+    return world[:, :2, :2]
+
+
+ELLIPSE_COLOUR = "#D55E00"
+"""Edge colour of the uncertainty ellipses."""
+ELLIPSE_SHARE_OF_VIEW = 0.04
+"""Automatic ``scale`` of :func:`draw_uncertainty_ellipses`: the largest drawn semi-axis becomes this
+fraction of the plot's extent (real 1σ ellipses of a well-constrained map are sub-pixel)."""
+
+
+def draw_uncertainty_ellipses(ax, poses: np.ndarray, covariances: np.ndarray, every: int = 1,
+                              scale: float | None = None, colour: str = ELLIPSE_COLOUR) -> float:
+    """Draw the 1σ ellipse of every ``every``-th pose's x–y position (index order), axes scaled by ``scale``.
+
+    Ellipses of :func:`planar_translation_covariances` (semi-axes ``scale·√λ`` along the
+    eigenvectors) as one ``EllipseCollection`` on the 2D axes ``ax`` (the caller makes its legend
+    entry); held vertices (zero covariance) draw as points. ``scale`` None: :data:`ELLIPSE_SHARE_OF_VIEW`.
+    Returns the scale used.
+    """
+    from matplotlib.collections import EllipseCollection
+
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
+    chosen = np.arange(0, np.shape(poses)[0], every)
+    planar = planar_translation_covariances(np.asarray(poses)[chosen], np.asarray(covariances)[chosen])
+    eigenvalues, eigenvectors = np.linalg.eigh(planar)  # ascending
+    semi = np.sqrt(np.clip(eigenvalues, 0.0, None))
+    if scale is None:
+        low, high = ax.get_xlim()
+        largest = float(semi.max(initial=0.0))
+        scale = ELLIPSE_SHARE_OF_VIEW * (high - low) / largest if largest > 0 else 1.0
+    angles = np.degrees(np.arctan2(eigenvectors[:, 1, 1], eigenvectors[:, 0, 1]))  # of the major axis
+    ellipses = EllipseCollection(2 * scale * semi[:, 1], 2 * scale * semi[:, 0], angles, units="xy",
+                                 offsets=np.asarray(poses)[chosen, :2, -1], offset_transform=ax.transData,
+                                 facecolors="none", edgecolors=colour, linewidths=0.8)
+    ax.add_collection(ellipses)
+    return float(scale)
 
 
 def plot_trajectories(

@@ -70,6 +70,20 @@ def test_factor_and_permutation_reproduce_the_matrix_and_leave_the_solver_usable
     np.testing.assert_allclose(factor.solve(rhs), np.linalg.solve(matrix, rhs), rtol=1e-10, atol=1e-12)
 
 
+def test_released_factor_is_the_same_and_closes_the_solver():
+    matrix, indptr, indices, data = random_spd(5, n=150)
+    factor = cholmod.SparseCholesky(indptr, indices, matrix.shape[0])
+    factor.factorize(data)
+    kept = factor.factor()
+    released = factor.factor(release=True)  # this object's own factor, no second factorisation
+    for a, b in zip(kept, released):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(RuntimeError, match="factorize"):
+        factor.solve(np.ones(matrix.shape[0]))
+    with pytest.raises(RuntimeError, match="closed"):
+        factor.factorize(data)
+
+
 def test_64_bit_and_unsorted_indices_give_the_same_solution():
     matrix, indptr, indices, data = random_spd(9, n=80)
     shuffled_indices, shuffled_data = indices.copy(), data.copy()

@@ -26,6 +26,7 @@ DESCRIPTION = (
 EXAMPLES = """
   posegraph optimize tinyGrid3D.g2o -o tiny-opt.g2o
   posegraph optimize sphere2500.g2o -o out.g2o --report report.json --plot before-after.png
+  posegraph optimize sphere2500.g2o -o out.g2o --covariances cov.npz   (then: posegraph plot out.g2o -o fig.png --covariances cov.npz)
   posegraph optimize garage.g2o -o out.g2o --method gn --init odometry --max-iterations 20 --quiet
   posegraph optimize -i 20 -o out.g2o in.g2o --fix 0 --stats     (g2o's habits: -i, fix by id)
   cat in.g2o | posegraph optimize - -o - --quiet > out.g2o
@@ -47,6 +48,11 @@ def add_arguments(p) -> None:
                    "per-iteration records as JSON (- for standard output)")
     p.add_argument("--plot", metavar="FIG.png", help="draw the input and optimised trajectories (needs matplotlib); "
                    "drawn after OUT is written, a failure is a warning")
+    p.add_argument("--covariances", metavar="COV.npz",
+                   help="write each pose's marginal covariance at the result (numpy .npz: 'ids' (n,), 'covariances' "
+                        "(n, d, d), d = 6 for SE(3) in gtsam's tangent order [rotation; translation] and body frame, "
+                        "3 for SE(2) [x, y, θ]); FIX vertices and each component's anchor are held, so theirs are "
+                        "zero and the others are relative to them; written with OUT, or neither")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
 
@@ -68,7 +74,8 @@ def run(args) -> int:
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
     chi2 = chi2_summary(held, result.poses)
-    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2)
+    covariances = _covariances(args, status, held, result, seconds) if args.covariances else None
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, covariances)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2)
     _warn_if_chi2_high(chi2)
@@ -91,9 +98,11 @@ def _check_outputs(args) -> None:
         check_output(args.report, inputs=[args.input], what="report", stdout=True)
     if args.plot:
         check_figure(args.plot, inputs=[args.input])
+    if args.covariances:
+        check_output(args.covariances, inputs=[args.input], what="covariances")
     if args.output == STDIO and args.report == STDIO:
         raise UsageError("the result and the report cannot both go to standard output (-)")
-    check_distinct([p for p in (args.output, args.report, args.plot) if p != STDIO])
+    check_distinct([p for p in (args.output, args.report, args.plot, args.covariances) if p and p != STDIO])
 
 
 def _start(args, status: Status):
@@ -134,8 +143,29 @@ def _with_fixed(graph, ids: list, path: str):
     return dataclasses.replace(graph, fixed=fixed)
 
 
-def _write_outputs(args, status: Status, graph, result, params, file_cost, seconds, chi2) -> None:
-    """The result and the report if asked, staged and renamed into place together (``-``: printed after)."""
+def _covariances(args, status: Status, held, result, seconds: dict):
+    """``(n, d, d)`` marginal covariances at the result, in the solve's gauge (``held``: with ``--fix``).
+
+    An H that is not positive definite there stops the command before anything is written.
+    """
+    from posegraph.cholmod import NotPositiveDefiniteError
+    from posegraph.covariance import marginal_covariances
+    from posegraph.errors import OutputError
+
+    with Ticker(status, "computing covariances"), Timer() as t:
+        try:
+            covariances = marginal_covariances(held, result.poses)
+        except NotPositiveDefiniteError as exc:
+            raise OutputError(f"cannot compute the covariances: the Gauss-Newton matrix at the result is not "
+                              f"positive definite ({exc}); nothing written", path=args.covariances) from None
+    seconds["covariances"] = t.seconds
+    status(f"covariances: {covariances.shape[0]} poses ({t.seconds:.3f} s)")
+    return covariances
+
+
+def _write_outputs(args, status: Status, graph, result, params, file_cost, seconds, chi2, covariances=None) -> None:
+    """The result, the report and the covariances if asked, staged and renamed into place together
+    (``-``: printed after)."""
     from posegraph.atomic import StagedOutputs, json_text
     from posegraph.io.g2o import format_g2o, write_g2o
 
@@ -159,6 +189,11 @@ def _write_outputs(args, status: Status, graph, result, params, file_cost, secon
             else:
                 with open(outputs.stage(args.report), "w", encoding="utf-8") as f:
                     f.write(report)
+        if covariances is not None:
+            import numpy as np
+
+            with open(outputs.stage(args.covariances), "wb") as f:  # a file object: savez adds no ".npz"
+                np.savez(f, ids=graph.ids, covariances=covariances)
         outputs.commit()
     for text in printed:
         sys.stdout.write(text)
@@ -201,7 +236,8 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
         f"linear solver:  {result.linear_solver}",
         "seconds:        " + ", ".join(f"{k} {v:.3f}" for k, v in seconds.items())
         + f", total {sum(seconds.values()):.3f}",
-        f"output:         {display_name_out(args.output)}" + "".join(f", {p}" for p in (args.report, args.plot) if p),
+        f"output:         {display_name_out(args.output)}"
+        + "".join(f", {p}" for p in (args.report, args.plot, args.covariances) if p),
     ]
     if args.stats:
         lines += _stats_table(chi2)

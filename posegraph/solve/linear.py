@@ -65,9 +65,11 @@ class LinearSolver:
         """Solution ``x`` of ``A x = rhs`` for the last factorised ``A``."""
         raise NotImplementedError
 
-    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - interface
+    def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - interface
         """``(indptr, indices, data, permutation)``: the last factor L (lower-triangular CSC, int64
-        indices) and the elimination order, with ``A[perm][:, perm] = L Lᵀ``."""
+        indices) and the elimination order, with ``A[perm][:, perm] = L Lᵀ``. ``release=True``:
+        the caller needs nothing more from this factorisation, which the backend may hand over
+        instead of copying (solves then need a new backend)."""
         raise NotImplementedError
 
 
@@ -93,8 +95,8 @@ class CholmodSolver(LinearSolver):
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         return self._cholesky.solve(rhs)
 
-    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return self._cholesky.factor()
+    def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return self._cholesky.factor(release)
 
 
 def vertex_graph(pattern: HessianPattern):
@@ -227,13 +229,15 @@ class ScipySolver(LinearSolver):
         x[self.permutation] = self._lu.solve(np.asarray(rhs, dtype=np.float64)[self.permutation])
         return x
 
-    def factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """L = L_unit·√D from SuperLU's ``L_unit U`` (``U = D L_unitᵀ`` without pivoting); see :meth:`LinearSolver.factor`."""
         if self._lu is None:
             raise RuntimeError("factorize() must succeed before factor()")
         lu = self._lu
         if not (np.array_equal(lu.perm_r, np.arange(self._shape[0])) and np.array_equal(lu.perm_c, lu.perm_r)):
             raise RuntimeError("SuperLU pivoted; its factor is not a Cholesky factor")  # not with diag_pivot_thresh=0
+        if release:
+            self._lu = None
         lower = (lu.L @ self._sparse.diags(np.sqrt(lu.U.diagonal()))).tocsc()
         lower.sort_indices()
         return lower.indptr.astype(np.int64), lower.indices.astype(np.int64), lower.data, self.permutation.copy()
