@@ -142,3 +142,13 @@ def test_edge_subgraph_keeps_the_file_lines_only_while_they_state_the_edges(tmp_
     back = read_g2o(tmp_path / "sub.g2o")
     np.testing.assert_array_equal(back.measurements, read.measurements[keep])
     np.testing.assert_array_equal(back.information, read.information[keep])
+
+
+@pytest.mark.parametrize("name", ["tinyGrid3D", "smallGrid3D"])
+def test_clean_graphs_lose_no_edge_and_reach_the_least_squares_optimum(shared_dataset, name):
+    from posegraph.io.g2o import read_g2o
+
+    graph = read_g2o(shared_dataset(name))
+    robust = optimize_robust(graph)
+    assert len(robust.outlier_edges) == 0
+    assert robust.final_cost == pytest.approx(optimize(graph).final_cost, rel=1e-9)
