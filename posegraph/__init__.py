@@ -11,7 +11,7 @@ Robust to wrong loop closures: ``posegraph.optimize(graph, params=posegraph.Solv
 posegraph.make_loss("cauchy")))`` (an M-estimator, Ceres' ``loss_function``), or
 ``posegraph.optimize_robust(graph)`` (graduated non-convexity, gtsam's ``GncLMOptimizer``).
 
-The Lie-group core is in :mod:`posegraph.lie` (``so3``, ``se3``). Names below are imported on first
+The Lie-group core is in :mod:`posegraph.lie` (``so2``, ``se2``, ``so3``, ``se3``; ``group``). Names below are imported on first
 use, so ``import posegraph`` stays cheap (no scipy, gtsam, Open3D or matplotlib at start-up).
 """
 
@@ -38,6 +38,8 @@ _LAZY = {
     "GncParams": "posegraph.robust.gnc",
     "make_loss": "posegraph.robust.losses",
     "InputError": "posegraph.errors",
+    "marginal_covariances": "posegraph.covariance",
+    "joint_covariance": "posegraph.covariance",
 }
 
 __all__ = sorted(_LAZY) + ["lie"]

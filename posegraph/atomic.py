@@ -17,7 +17,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "StagedOutputs"]
+__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "json_text", "StagedOutputs"]
 
 
 @contextlib.contextmanager
@@ -31,7 +31,10 @@ def atomic_path(path, suffix: str | None = None):
     tmp = _temporary_beside(path, suffix)
     try:
         yield tmp
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise _output_error(path, exc) from exc
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -41,9 +44,12 @@ def atomic_path(path, suffix: str | None = None):
 def _temporary_beside(path: Path, suffix: str | None) -> str:
     """Create an empty temporary file next to ``path`` and return its name."""
     folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=folder
-    )
+    try:
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=folder
+        )
+    except OSError as exc:  # named by the user's path, not the temporary one
+        raise _output_error(path, exc) from exc
     os.close(fd)
     # mkstemp makes the file private (0600); give it the mode a plain open() would.
     os.chmod(tmp, 0o666 & ~_umask())
@@ -83,7 +89,10 @@ class StagedOutputs:
         previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(1)) if in_main else None
         try:
             for tmp, path in self._staged:
-                os.replace(tmp, path)
+                try:
+                    os.replace(tmp, path)
+                except OSError as exc:
+                    raise _output_error(path, exc) from exc
             self._staged = []
         finally:
             if in_main:
@@ -96,6 +105,13 @@ class StagedOutputs:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
         self._staged = []
+
+
+def _output_error(path: Path, exc: OSError):
+    """An :class:`~posegraph.errors.OutputError` naming ``path`` (the destination) for ``exc``."""
+    from posegraph.errors import OutputError
+
+    return OutputError(f"cannot write the file: {exc.strerror or exc}", path=str(path))
 
 
 def _umask() -> int:
@@ -113,7 +129,12 @@ def write_text_atomic(path, text: str) -> None:
 
 def write_json_atomic(path, data, indent: int = 2) -> None:
     """Write ``data`` as JSON to ``path`` atomically (NaN and infinities written as ``null``)."""
-    write_text_atomic(path, json.dumps(_finite(data), indent=indent) + "\n")
+    write_text_atomic(path, json_text(data, indent))
+
+
+def json_text(data, indent: int = 2) -> str:
+    """``data`` as strict JSON text with a final newline (NaN and infinities as ``null``)."""
+    return json.dumps(_finite(data), indent=indent) + "\n"
 
 
 def _finite(value):

@@ -101,6 +101,8 @@ class PoseGraph:
     """The Lie group of the poses and measurements (:data:`posegraph.lie.group.SE3` by default). The
     solver takes every size from it: tangent dimension ``group.dim`` (the block size of the normal
     equations) and matrix size ``group.matrix_size``; residuals and Jacobians use its functions."""
+    edge_lines: np.ndarray | None = field(default=None, repr=False)
+    """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:

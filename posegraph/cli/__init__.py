@@ -14,10 +14,11 @@ Modules: :mod:`~posegraph.cli.program` (``main``: exit statuses and one-line err
 ``optimize``, ``compare``, ``verify_jacobians``, ``info``, ``eval``, ``plot``, ``export``.
 
 Exit status: 0 success (optimiser converged; compare agreed; every Jacobian check within
-tolerance); 1 the run finished but did not meet that bar (iteration cap hit — the result is still
-written, with a warning —, costs disagree, a check over tolerance); 2 bad input or usage (one line
-``posegraph: error: file:line: reason`` on stderr, nothing written); 130 interrupted by Ctrl-C
-(nothing written).
+tolerance); 1 the run finished but did not meet that bar (iteration cap hit or figure not drawn —
+the result is still written, with a warning —, costs disagree, a check over tolerance); 2 bad
+input or usage (one line ``posegraph: error: file:line: reason`` on stderr, nothing written); 3 an
+internal error (one line; ``--debug`` shows the traceback); 130 interrupted by Ctrl-C (nothing
+written). No exception reaches the user as a traceback without ``--debug``.
 """
 
 from posegraph.cli.program import main

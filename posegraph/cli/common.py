@@ -16,9 +16,19 @@ PROG = "posegraph"
 EXIT_OK = 0
 EXIT_NOT_CONVERGED = 1
 EXIT_USAGE = 2
+EXIT_BUG = 3
 EXIT_INTERRUPTED = 130
 
-OPTIONAL_MODULES = frozenset({"gtsam", "open3d", "matplotlib", "mpl_toolkits", "sksparse"})
+STDIO = "-"
+"""A file argument naming standard input (where a graph is read) or standard output (where one is written)."""
+
+LARGE_GRAPH_POSES = 10_000
+"""Graphs above this many poses get a line as each slow phase (reading, initialising) starts."""
+LARGE_FILE_BYTES = 4_000_000
+"""Files above this size get a line before reading: about :data:`LARGE_GRAPH_POSES` poses (the
+standard files hold ~440 bytes per pose: sphere2500 is 1.09 MB for 2,500 poses)."""
+
+OPTIONAL_MODULES = frozenset({"gtsam", "open3d", "matplotlib", "mpl_toolkits"})
 """Packages some commands or options need; their absence is a usage error, not a crash."""
 
 MAX_WARNINGS_SHOWN = 20
@@ -146,19 +156,65 @@ def fmt_cost(x: float) -> str:
 # paths and inputs
 
 
-def check_output(path: str, *, inputs=(), allow_input: bool = False, what: str = "output") -> None:
-    """Fail before any work if ``path`` cannot be written as asked."""
+def check_output(
+    path: str, *, inputs=(), allow_input: bool = False, what: str = "output", stdout: bool = False
+) -> None:
+    """Fail before any work if ``path`` cannot be written as asked; ``-`` is standard output where
+    the command can write this output there (``stdout``), else a usage error."""
     from posegraph.errors import OutputError
 
+    if path == STDIO:
+        if stdout:
+            return
+        raise UsageError(f"the {what} cannot go to standard output (-): give a file name")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise OutputError(f"cannot write the {what}: folder {folder} does not exist", path=path)
     if os.path.isdir(path):
         raise OutputError(f"cannot write the {what}: it is a folder", path=path)
+    reason = _cannot_create_in(folder)
+    if reason:
+        raise OutputError(f"cannot write the {what}: no file can be created in folder {folder} ({reason})", path=path)
     for source in inputs:
-        if _same_file(path, source) and not allow_input:
+        if source != STDIO and _same_file(path, source) and not allow_input:
             hint = " (pass --force to overwrite it)" if what == "result" else ""
             raise OutputError(f"the {what} would overwrite the input {source}{hint}", path=path)
+
+
+def _cannot_create_in(folder: str) -> str:
+    """Why no file can be created in ``folder`` ("" if one can): a real attempt, as the writers will
+    make (``os.access`` says yes to root on read-only file systems and on ``/proc``)."""
+    import tempfile
+
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".posegraph-probe-", dir=folder)
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    os.close(fd)
+    os.unlink(probe)
+    return ""
+
+
+def check_figure(path: str, inputs=()) -> None:
+    """Fail before any work if the figure ``path`` cannot be drawn: matplotlib missing, a format it
+    does not write (the extension picks it; none means PNG), or an unwritable path."""
+    from posegraph.errors import OutputError
+
+    check_output(path, inputs=inputs, what="figure")
+    require_matplotlib()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    formats = FigureCanvasAgg.get_supported_filetypes()
+    extension = os.path.splitext(path)[1].lstrip(".").lower()
+    if extension and extension not in formats:
+        raise OutputError(f"cannot draw a figure in format {extension!r}; matplotlib writes "
+                          + ", ".join(sorted(formats)), path=path)
+
+
+def check_inputs(paths) -> None:
+    """A :class:`UsageError` if standard input (``-``) is named more than once."""
+    if sum(path == STDIO for path in paths) > 1:
+        raise UsageError("standard input (-) can be read only once")
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -181,10 +237,18 @@ def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_
     """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``."""
     from posegraph.io.g2o import read_g2o
 
+    size = os.path.getsize(path) if path != STDIO and os.path.isfile(path) else 0
+    if size > LARGE_FILE_BYTES:
+        status(f"reading {path} ({size / 1e6:.1f} MB) …")
     with Ticker(status, f"reading {path}"), Timer() as t:
         graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information)
-    status(f"read {path}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
+    status(f"read {display_name(path)}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
     return graph, t.seconds
+
+
+def display_name(path: str) -> str:
+    """``path`` as messages show it (``<stdin>`` / ``<stdout>`` for ``-``)."""
+    return "<stdin>" if path == STDIO else path
 
 
 def require_matplotlib() -> None:

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from posegraph.cli.common import (
-    EXIT_NOT_CONVERGED, EXIT_OK, Status, Timer, check_output, fmt_cost, non_negative_float, read_graph, repair_option,
+    EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, check_output, display_name, fmt_cost, non_negative_float,
+    read_graph, repair_option,
 )
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params
 
@@ -29,7 +30,7 @@ EXAMPLES = """
 
 
 def add_arguments(p) -> None:
-    p.add_argument("input", metavar="IN.g2o", help="input pose graph")
+    p.add_argument("input", metavar="IN.g2o", help="input pose graph (- for standard input)")
     repair_option(p)
     solver_options(p)
     p.add_argument("--gtsam-start", choices=("same", "own"), default="same",
@@ -71,7 +72,7 @@ def _run_ours(args, status: Status) -> dict:
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
     with Timer() as t_init:
         start = initial_poses(graph, args)
-    params = solver_params(args, callback=None if args.quiet else iteration_printer(status))
+    params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
     status(f"posegraph: {params.method}, start {args.init}")
     with Timer() as t_opt:
         result = optimize(graph, initial=start, params=params)
@@ -89,9 +90,10 @@ def _run_gtsam(args, status: Status, ours: dict):
     else:
         gtsam_init, gtsam_initial = args.init, None
     status(f"gtsam: {params.method}, start {'same as posegraph' if gtsam_init == 'given' else args.init}")
-    # With repaired information gtsam gets our model, not the file's matrices.
+    # With repaired information (or a graph from standard input) gtsam gets our model, not the file.
     theirs = run_gtsam(
-        graph if args.repair_information else args.input, graph=graph, init=gtsam_init, initial=gtsam_initial,
+        graph if args.repair_information or args.input == STDIO else args.input,
+        graph=graph, init=gtsam_init, initial=gtsam_initial,
         method=params.method,
         max_iterations=params.max_iterations, relative_tolerance=params.relative_tolerance,
         absolute_tolerance=params.absolute_tolerance,
@@ -115,32 +117,46 @@ def _compare(our_poses, their_poses, our_cost: float, their_cost: float) -> dict
     }
 
 
-def _rows(ours: dict, theirs) -> tuple[dict, dict]:
-    """The table's two columns, as text."""
-    result, seconds = ours["result"], ours["seconds"]
-    ours_row = {
-        "start cost": fmt_cost(ours["start_cost"]), "final cost": fmt_cost(result.final_cost),
-        "iterations": str(result.iterations), "converged": "yes" if result.converged else "no",
-        "seconds read": f"{seconds['read']:.4f}", "seconds initialise": f"{seconds['initialise']:.4f}",
-        "seconds optimise": f"{seconds['optimise']:.4f}",
-        "seconds total": f"{seconds['read'] + seconds['initialise'] + seconds['optimise']:.4f}",
+def _phases(args, ours: dict, theirs, gtsam_init: str) -> dict:
+    """Seconds per phase, labelled by what each tool did: ``{label: (ours, theirs)}``, None where a
+    tool had no such phase. Reading a file and converting posegraph's graph, initialising and
+    converting posegraph's start are different work, so they are different rows."""
+    seconds = ours["seconds"]
+    gtsam_built = args.repair_information or args.input == STDIO  # gtsam got our graph, not the file
+    gtsam_given = gtsam_init == "given"  # gtsam got our start, converted to Values
+    phases = {
+        "seconds read file": (seconds["read"], None if gtsam_built else theirs.seconds_read),
+        "seconds convert graph": (None, theirs.seconds_read if gtsam_built else None),
+        f"seconds initialise ({args.init})": (
+            seconds["initialise"], None if gtsam_given else theirs.seconds_initialise),
+        "seconds convert start": (None, theirs.seconds_initialise if gtsam_given else None),
+        "seconds optimise": (seconds["optimise"], theirs.seconds_optimise),
     }
-    theirs_row = {
-        "start cost": fmt_cost(theirs.initial_cost), "final cost": fmt_cost(theirs.final_cost),
-        "iterations": str(theirs.iterations), "converged": "yes" if theirs.converged else "no",
-        "seconds read": f"{theirs.seconds_read:.4f}", "seconds initialise": f"{theirs.seconds_initialise:.4f}",
-        "seconds optimise": f"{theirs.seconds_optimise:.4f}", "seconds total": f"{theirs.seconds_total:.4f}",
-    }
+    phases = {k: v for k, v in phases.items() if v != (None, None)}
+    phases["seconds total"] = tuple(sum(v[side] or 0.0 for v in phases.values()) for side in (0, 1))
+    return phases
+
+
+def _rows(args, ours: dict, theirs, gtsam_init: str) -> tuple[dict, dict]:
+    """The table's two columns, as text ("–" where a tool had no such phase)."""
+    result = ours["result"]
+    ours_row = {"start cost": fmt_cost(ours["start_cost"]), "final cost": fmt_cost(result.final_cost),
+                "iterations": str(result.iterations), "converged": "yes" if result.converged else "no"}
+    theirs_row = {"start cost": fmt_cost(theirs.initial_cost), "final cost": fmt_cost(theirs.final_cost),
+                  "iterations": str(theirs.iterations), "converged": "yes" if theirs.converged else "no"}
+    for label, (mine, other) in _phases(args, ours, theirs, gtsam_init).items():
+        ours_row[label] = "–" if mine is None else f"{mine:.4f}"
+        theirs_row[label] = "–" if other is None else f"{other:.4f}"
     return ours_row, theirs_row
 
 
 def _print_table(args, ours: dict, theirs, gtsam_init: str, comparison: dict, agree: bool) -> None:
-    ours_row, theirs_row = _rows(ours, theirs)
+    ours_row, theirs_row = _rows(args, ours, theirs, gtsam_init)
     graph, method = ours["graph"], ours["params"].method
     header = ("", "posegraph", f"gtsam {theirs.version}".strip())
     width = max(len(k) for k in ours_row) + 2
     col = max(14, *(len(v) for v in ours_row.values())) + 2
-    print(f"{args.input}: {graph.num_vertices} vertices, {graph.num_edges} edges; {method.upper()}, "
+    print(f"{display_name(args.input)}: {graph.num_vertices} vertices, {graph.num_edges} edges; {method.upper()}, "
           f"start {args.init}" + (" (gtsam from the same poses)" if gtsam_init == "given" else " (each its own)"))
     print(f"{header[0]:<{width}}{header[1]:<{col}}{header[2]}")
     for key in ours_row:
@@ -155,20 +171,25 @@ def _write_report(args, ours: dict, theirs, gtsam_init: str, comparison: dict, a
     from posegraph.atomic import write_json_atomic
 
     params, result = ours["params"], ours["result"]
+    phases = _phases(args, ours, theirs, gtsam_init)
+    seconds = [{_phase_key(k): v[side] for k, v in phases.items() if v[side] is not None} for side in (0, 1)]
     write_json_atomic(args.report, {
-        "input": args.input, "method": params.method, "init": args.init, "gtsam_start": gtsam_init,
+        "input": display_name(args.input), "method": params.method, "init": args.init, "gtsam_start": gtsam_init,
         "relative_tolerance": params.relative_tolerance, "absolute_tolerance": params.absolute_tolerance,
         "max_iterations": params.max_iterations,
         "posegraph": {"start_cost": ours["start_cost"], "final_cost": result.final_cost,
                       "iterations": result.iterations, "converged": result.converged,
                       "termination": result.termination, "linear_solver": result.linear_solver,
-                      "seconds": ours["seconds"]},
+                      "seconds": seconds[0]},
         "gtsam": {"version": theirs.version, "start_cost": theirs.initial_cost, "final_cost": theirs.final_cost,
-                  "iterations": theirs.iterations, "converged": theirs.converged,
-                  "seconds": {"read": theirs.seconds_read, "initialise": theirs.seconds_initialise,
-                              "optimise": theirs.seconds_optimise}},
+                  "iterations": theirs.iterations, "converged": theirs.converged, "seconds": seconds[1]},
         "final_cost_relative_difference": comparison["final_cost_relative_difference"],
         "cost_tolerance": args.cost_tolerance, "agree": agree,
         "max_rotation_difference_deg": comparison["max_rotation_difference_deg"],
         "max_translation_difference": comparison["max_translation_difference"],
     })
+
+
+def _phase_key(label: str) -> str:
+    """``"seconds initialise (chordal)"`` → ``"initialise"``: the report's key of a phase row."""
+    return label.removeprefix("seconds ").split(" (")[0].replace(" ", "_")

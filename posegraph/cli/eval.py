@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from posegraph.cli.common import EXIT_OK, non_negative_float, repair_option, warn
+from posegraph.cli.common import EXIT_OK, check_inputs, display_name, non_negative_float, repair_option, warn
+
+LENGTH_UNIT = "m"
+"""g2o files carry no unit; translations are in the files' own length unit, metres in the standard
+datasets (and in evo's reports, whose layout this follows)."""
 
 NAME = "eval"
 HELP = "trajectory errors (ATE, RPE) against a reference"
@@ -22,7 +26,7 @@ EXAMPLES = """
 
 
 def add_arguments(p) -> None:
-    p.add_argument("estimate", metavar="EST", help="estimated poses (g2o, TUM or KITTI file)")
+    p.add_argument("estimate", metavar="EST", help="estimated poses (g2o, TUM or KITTI file; - for standard input)")
     p.add_argument("reference", metavar="GT", help="reference (ground-truth) poses (g2o, TUM or KITTI file)")
     repair_option(p)
     # 0.01 = posegraph.io.trajectory.EVO_MAX_TIME_DIFF, not imported here: --help stays free of numpy.
@@ -37,7 +41,7 @@ def read_poses(path: str, repair_information: bool):
     """``(keys (n,), poses)`` of a g2o, TUM or KITTI file: vertex ids, timestamps or line numbers."""
     from posegraph.io import trajectory
 
-    kind = trajectory.file_format(path)
+    kind = "g2o" if path == "-" else trajectory.file_format(path)
     if kind == "tum":
         return trajectory.read_tum(path)
     if kind == "kitti":
@@ -51,28 +55,32 @@ def run(args) -> int:
     from posegraph.evaluate import evaluate
     from posegraph.io.trajectory import matching_keys
 
+    check_inputs([args.estimate, args.reference])
     estimate_stamps, estimate_poses = read_poses(args.estimate, args.repair_information)
     reference_stamps, reference_poses = read_poses(args.reference, args.repair_information)
     estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
     result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
                       align=not args.no_align, source=args.estimate)
+    estimate, reference = display_name(args.estimate), display_name(args.reference)
     if result.num_matched < max(result.num_estimate, result.num_reference):
         warn(f"compared the {result.num_matched} vertex ids present in both files "
-             f"({result.num_estimate} in {args.estimate}, {result.num_reference} in {args.reference})")
+             f"({result.num_estimate} in {estimate}, {result.num_reference} in {reference})")
     if args.json:
         import json
 
-        print(json.dumps(result.as_dict(), indent=2))
+        data = result.as_dict()
+        data["units"] = {"translation": LENGTH_UNIT, "rotation": "deg"}
+        print(json.dumps(data, indent=2))
         return EXIT_OK
-    print(f"estimate:  {args.estimate}")
-    print(f"reference: {args.reference}")
+    print(f"estimate:  {estimate}")
+    print(f"reference: {reference}")
     print(f"matched:   {result.num_matched} poses by vertex id; ATE after "
           + ("a least-squares SE(3) alignment (Umeyama, no scale)" if not args.no_align else "no alignment")
-          + "; RPE between consecutive ids")
+          + f"; RPE between consecutive ids; translations in {LENGTH_UNIT} (the files' unit), rotations in degrees")
     names = ("rmse", "mean", "median", "std", "min", "max")
-    print(f"{'':<22}" + "".join(f"{n:>12}" for n in names))
-    rows = (("ATE translation", result.ate_translation), ("ATE rotation (deg)", result.ate_rotation),
-            ("RPE translation", result.rpe_translation), ("RPE rotation (deg)", result.rpe_rotation))
+    print(f"{'':<24}" + "".join(f"{n:>12}" for n in names))
+    rows = ((f"ATE translation ({LENGTH_UNIT})", result.ate_translation), ("ATE rotation (deg)", result.ate_rotation),
+            (f"RPE translation ({LENGTH_UNIT})", result.rpe_translation), ("RPE rotation (deg)", result.rpe_rotation))
     for label, stats in rows:
-        print(f"{label:<22}" + "".join(f"{getattr(stats, n):>12.6g}" for n in names))
+        print(f"{label:<24}" + "".join(f"{getattr(stats, n):>12.6f}" for n in names))
     return EXIT_OK

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
-from posegraph.cli.common import EXIT_OK, Status, fmt_cost, read_graph, repair_option
+import re
+
+from posegraph.cli.common import EXIT_OK, Status, display_name, fmt_cost, read_graph, repair_option
 
 NAME = "info"
 HELP = "counts, components, degrees, information ranges, cost"
 DESCRIPTION = (
     "Describe a g2o pose graph: vertex and edge counts, FIX vertices, connected components, "
     "degree statistics, odometry edges (consecutive ids) against loop closures, ranges of the "
-    "information matrices, and the cost at the file's poses."
+    "information matrices, and the cost, chi2 and chi2/dof at the file's poses. A graph that "
+    "optimize would refuse (information matrices not positive semi-definite, no edges) is described "
+    "all the same, with what optimize would refuse and why."
 )
 EXAMPLES = """
   posegraph info parking-garage.g2o
@@ -17,7 +21,7 @@ EXAMPLES = """
 
 
 def add_arguments(p) -> None:
-    p.add_argument("input", metavar="IN.g2o", help="input pose graph")
+    p.add_argument("input", metavar="IN.g2o", help="input pose graph (- for standard input)")
     repair_option(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
 
@@ -25,8 +29,9 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from posegraph.report import graph_info
 
-    graph, _ = read_graph(args.input, Status(True), repair_information=args.repair_information)
+    graph, refusals = _read_for_description(args)
     info = graph_info(graph)
+    info["optimize_refuses"] = refusals
     if args.json:
         import json
 
@@ -39,10 +44,39 @@ def run(args) -> int:
     return EXIT_OK
 
 
+_REPAIRED = re.compile(r":(\d+): repaired (\d+) information matrices")
+"""The reader's warning for ``repair_information=True`` (``posegraph.io.g2o_checks.check_information``)."""
+
+
+def _read_for_description(args):
+    """``(graph, what optimize would refuse)``: the file read as leniently as the reader allows.
+
+    Indefinite information matrices are repaired (counted, and described as a refusal unless
+    ``--repair-information`` was asked for), and a file without edges is read as a trajectory.
+    """
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=True)
+    refusals = []
+    for w in caught:
+        match = _REPAIRED.search(str(w.message))
+        if match and not args.repair_information:
+            refusals.append(f"{match.group(2)} information matrices are not positive semi-definite (the first at "
+                            f"line {match.group(1)}): optimize refuses the file without --repair-information; "
+                            "the figures here are of the repaired matrices")
+        else:
+            warnings.warn(w.message, stacklevel=1)
+    if graph.num_edges == 0:
+        refusals.append("the file has no edges: there is nothing to optimise")
+    return graph, refusals
+
+
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     """The text output's ``(label, value)`` lines from :func:`posegraph.report.graph_info`."""
     rows = [
-        ("file", path),
+        ("file", display_name(path)),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "
                      + ("contiguous" if info["ids_contiguous"] else "not contiguous")
                      + f"), {info['num_fixed']} fixed"),
@@ -60,5 +94,8 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     whole = info["information"]
     rows.append(("information, 6x6", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
-    rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (at the file's poses)"))
+    rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (½χ² at the file's poses; χ² "
+                                 f"{fmt_cost(info['chi2'])}, χ²/dof {info['chi2_per_dof']:.4g}, dof {info['dof']})"))
+    for refusal in info["optimize_refuses"]:
+        rows.append(("optimize refuses", refusal))
     return rows

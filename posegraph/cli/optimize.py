@@ -4,41 +4,55 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
+import sys
 
 from posegraph.cli.common import (
-    EXIT_NOT_CONVERGED, EXIT_OK, Status, Ticker, Timer, check_distinct, check_output, fmt_cost, read_graph,
-    repair_option, require_matplotlib, warn,
+    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
+    check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
+    warn,
 )
-from posegraph.cli.robust import OUTLIER_WEIGHT, check_robust_options, final_weights, output_graph, outlier_line, robust_options, run_gnc
-from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params
+from posegraph.cli.robust import (
+    check_robust_options, final_weights, output_graph, robust_options, robust_report, robust_summary, run_gnc,
+)
+from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
 
 NAME = "optimize"
 HELP = "optimise a g2o pose graph and write the result"
 DESCRIPTION = (
     "Optimise the vertex poses of a g2o file and write a g2o file with the same edges and FIX lines "
     "and the optimised vertices. Progress (one line per iteration: cost, decrease, LM lambda, "
-    "seconds) goes to stderr; a summary to stdout. Exit status 1 (result still written) when the "
-    "iteration cap ends the run before convergence."
+    "seconds) goes to stderr; a summary to stdout: the cost (1/2 chi2, as gtsam's error), chi2 "
+    "(as g2o prints it) and chi2/dof, with a warning naming the worst edges when chi2/dof is far "
+    "above 1. IN or OUT may be - (standard input / output). Exit status 1 (result still written) "
+    "when the iteration cap ends the run before convergence or the figure could not be drawn."
 )
 EXAMPLES = """
   posegraph optimize tinyGrid3D.g2o -o tiny-opt.g2o
   posegraph optimize sphere2500.g2o -o out.g2o --report report.json --plot before-after.png
   posegraph optimize garage.g2o -o out.g2o --method gn --init odometry --max-iterations 20 --quiet
+  posegraph optimize -i 20 -o out.g2o in.g2o --fix 0 --stats     (g2o's habits: -i, fix by id)
+  cat in.g2o | posegraph optimize - -o - --quiet > out.g2o
   posegraph optimize in.g2o -o in.g2o --force      (overwrite the input, atomically)
   posegraph optimize noisy.g2o -o out.g2o --robust gnc --drop-outliers --report report.json
   posegraph optimize in.g2o -o out.g2o --robust cauchy --robust-scale 3"""
 
 
 def add_arguments(p) -> None:
-    p.add_argument("input", metavar="IN.g2o", help="input pose graph")
-    p.add_argument("-o", "--output", metavar="OUT.g2o", required=True, help="output pose graph")
+    p.add_argument("input", metavar="IN.g2o", help="input pose graph (- for standard input)")
+    p.add_argument("-o", "--output", metavar="OUT.g2o", required=True,
+                   help="output pose graph (- for standard output; the summary then goes to stderr)")
     repair_option(p)
     solver_options(p)
     robust_options(p)
-    p.add_argument("--report", metavar="REPORT.json", help="write costs, iterations, timings and per-iteration "
-                   "records as JSON")
-    p.add_argument("--plot", metavar="FIG.png", help="draw the input and optimised trajectories (needs matplotlib)")
+    p.add_argument("--fix", metavar="ID", nargs="+", action="extend", type=non_negative_int, default=[],
+                   help="hold these vertex ids at their start, besides the file's FIX lines (which then anchor "
+                        "their component instead of its smallest id); OUT keeps the file's FIX lines only")
+    p.add_argument("--stats", action="store_true",
+                   help="print count, chi2 and chi2 per edge by edge kind (odometry, loop closure) at the result")
+    p.add_argument("--report", metavar="REPORT.json", help="write costs, chi2, iterations, timings and "
+                   "per-iteration records as JSON (- for standard output)")
+    p.add_argument("--plot", metavar="FIG.png", help="draw the input and optimised trajectories (needs matplotlib); "
+                   "drawn after OUT is written, a failure is a warning")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
 
@@ -48,110 +62,195 @@ def run(args) -> int:
 
     status = Status(args.quiet)
     _check_outputs(args)
-    import_solver_modules()  # first: it imports scipy.sparse its own way
+    import_solver_modules()  # first: it sets one BLAS thread before numpy loads
+    from posegraph.report import chi2_summary
     from posegraph.solve import optimize
 
-    graph, start, file_cost, start_cost, seconds = _start(args, status)
-    params = solver_params(args, callback=None if args.quiet else iteration_printer(status))
+    graph, held, start, file_cost, seconds = _start(args, status)
+    params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
     robust = None
     with Timer() as t_opt:
         if args.robust == "gnc":
-            robust = run_gnc(graph, start, solver_params(args), args, status)
+            robust = run_gnc(held, start, solver_params(args), args, status)
             result = robust.result
         else:
-            result = optimize(graph, initial=start, params=params)
-    if start_cost is None:
-        start_cost = result.initial_cost
-    status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s)")
+            result = optimize(held, initial=start, params=params)
     seconds["optimise"] = t_opt.seconds
-    weights = final_weights(graph, args, result, robust)
-    _write_outputs(args, status, graph, result, params, file_cost, start_cost, seconds, weights)
+    status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
+           f"{stop_reason(result, params)}")
+    weights = final_weights(held, args, result, robust)
+    chi2 = chi2_summary(output_graph(held, weights, drop=True), result.poses)  # robust: over the inliers
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights)
     if not args.quiet:
-        _print_summary(args, graph, result, file_cost, seconds)
-        if weights is not None:
-            print(outlier_line(graph, weights))
+        _print_summary(args, graph, result, params, file_cost, seconds, chi2)
+        robust_summary(graph, weights, args)
+    _warn_if_chi2_high(chi2)
+    drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
-        return EXIT_OK
+        return EXIT_OK if drawn else EXIT_NOT_CONVERGED
     warn(f"the solver stopped before converging ({result.termination}, {result.iterations} iterations); "
-         f"the result was written to {args.output} anyway")
+         f"the result was written to {display_name_out(args.output)} anyway")
     return EXIT_NOT_CONVERGED
+
+
+def display_name_out(path: str) -> str:
+    return "<stdout>" if path == STDIO else path
 
 
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
     check_robust_options(args)
-    check_output(args.output, inputs=[args.input], allow_input=args.force, what="result")
+    check_output(args.output, inputs=[args.input], allow_input=args.force, what="result", stdout=True)
     if args.report:
-        check_output(args.report, inputs=[args.input], what="report")
+        check_output(args.report, inputs=[args.input], what="report", stdout=True)
     if args.plot:
-        check_output(args.plot, inputs=[args.input], what="figure")
-        require_matplotlib()
-    check_distinct([args.output, args.report, args.plot])
+        check_figure(args.plot, inputs=[args.input])
+    if args.output == STDIO and args.report == STDIO:
+        raise UsageError("the result and the report cannot both go to standard output (-)")
+    check_distinct([p for p in (args.output, args.report, args.plot) if p != STDIO])
 
 
 def _start(args, status: Status):
-    """Read and initialise: ``(graph, start poses, file cost, start cost or None, seconds per phase)``.
+    """Read and initialise: ``(graph as read, graph with --fix held, start, file cost, seconds per phase)``.
 
     The cost at the file's poses is printed and reported; with ``--quiet`` and no report nothing
-    shows it, and it is NaN. With ``--quiet`` the start cost is None: the solver's own first
-    evaluation (``result.initial_cost``) supplies it.
+    shows it, and it is NaN.
     """
     from posegraph.solve.residuals import cost
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
+    if graph.num_vertices > LARGE_GRAPH_POSES:
+        status(f"initialising ({args.init}): {graph.num_vertices} poses …")
     with Ticker(status, f"initialising ({args.init})"), Timer() as t_init:
-        start = initial_poses(graph, args)
-    start_cost = None
-    if not args.quiet and start is not None:  # None: GNC's robust start, made by the optimiser
+        start = initial_poses(held, args)
+    if not args.quiet and start is not None:  # None: --robust gnc's robust start, made by the optimiser
         start_cost = float(cost(graph, start)) if args.init != "file" else file_cost
         status(f"initialised ({args.init}): cost {fmt_cost(file_cost)} -> {fmt_cost(start_cost)} "
                f"({t_init.seconds:.3f} s)")
-    return graph, start, file_cost, start_cost, {"read": seconds_read, "initialise": t_init.seconds}
+    return graph, held, start, file_cost, {"read": seconds_read, "initialise": t_init.seconds}
 
 
-def _write_outputs(args, status: Status, graph, result, params, file_cost, start_cost, seconds, weights=None) -> None:
-    """The result, and the figure and report if asked, staged and renamed into place together."""
-    from posegraph.atomic import StagedOutputs
-    from posegraph.io.g2o import write_g2o
+def _with_fixed(graph, ids: list, path: str):
+    """``graph`` with the vertices ``ids`` (``--fix``) held too; a usage error for an id not in the file."""
+    if not ids:
+        return graph
+    import dataclasses
 
+    import numpy as np
+
+    missing = np.setdiff1d(np.asarray(ids, dtype=np.int64), graph.ids)
+    if missing.size:
+        raise UsageError(f"--fix: vertex id {int(missing[0])} is not in {display_name(path)}")
+    fixed = graph.fixed.copy()
+    fixed[graph.index_of(ids)] = True
+    return dataclasses.replace(graph, fixed=fixed)
+
+
+def _write_outputs(args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None) -> None:
+    """The result and the report if asked, staged and renamed into place together (``-``: printed after)."""
+    from posegraph.atomic import StagedOutputs, json_text
+    from posegraph.io.g2o import format_g2o, write_g2o
+
+    printed = []
     with StagedOutputs() as outputs:
         with Ticker(status, f"writing {args.output}"), Timer() as t_write:
-            write_g2o(outputs.stage(args.output), output_graph(graph, weights, args), result.poses)
+            written = output_graph(graph, weights, drop=args.drop_outliers)
+            if args.output == STDIO:
+                printed.append(format_g2o(written, result.poses))
+            else:
+                write_g2o(outputs.stage(args.output), written, result.poses)
         seconds["write"] = t_write.seconds
-        if args.plot:
-            from posegraph.plot import plot_trajectories
-
-            with Ticker(status, f"drawing {args.plot}"), Timer() as t_plot:
-                plot_trajectories(
-                    outputs.stage(args.plot), [graph, graph],
-                    [f"input ({os.path.basename(args.input)})", "optimised"],
-                    [graph.poses, result.poses], title=os.path.basename(args.input),
-                )
-            seconds["plot"] = t_plot.seconds
         if args.report:
-            from posegraph.atomic import write_json_atomic
             from posegraph.report import optimize_report
 
             report = optimize_report(
-                args.input, args.output, graph, result, init=args.init, file_cost=file_cost,
-                start_cost=start_cost, seconds=seconds, params=params,
+                display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
+                file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
             )
-            if weights is not None:
-                report["robust"] = args.robust
-                report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
-            write_json_atomic(outputs.stage(args.report), report)
+            report = json_text(robust_report(report, args, weights))
+            if args.report == STDIO:
+                printed.append(report)
+            else:
+                with open(outputs.stage(args.report), "w", encoding="utf-8") as f:
+                    f.write(report)
         outputs.commit()
+    for text in printed:
+        sys.stdout.write(text)
+    sys.stdout.flush()
 
 
-def _print_summary(args, graph, result, file_cost: float, seconds: dict) -> None:
-    print(f"input:          {args.input} ({graph.num_vertices} vertices, {graph.num_edges} edges)")
-    print(f"file cost:      {fmt_cost(file_cost)}")
-    print(f"initial cost:   {fmt_cost(result.initial_cost)} (after {args.init} initialisation)")
-    print(f"final cost:     {fmt_cost(result.final_cost)}")
-    print(f"iterations:     {result.iterations}")
-    print(f"termination:    {result.termination}")
-    print(f"linear solver:  {result.linear_solver}")
-    print("seconds:        " + ", ".join(f"{k} {v:.3f}" for k, v in seconds.items())
-          + f", total {sum(seconds.values()):.3f}")
-    print(f"output:         {args.output}" + "".join(f", {p}" for p in (args.report, args.plot) if p))
+def _draw(args, status: Status, graph, result) -> bool:
+    """The figure, once the result is safe: a failure (or Ctrl-C) is a warning, not a lost result."""
+    from posegraph.plot import plot_trajectories
+
+    try:
+        with Ticker(status, f"drawing {args.plot}"):
+            plot_trajectories(
+                args.plot, [graph, graph], [f"input ({os.path.basename(display_name(args.input))})", "optimised"],
+                [graph.poses, result.poses], title=os.path.basename(display_name(args.input)),
+            )
+    except KeyboardInterrupt:
+        warn(f"interrupted while drawing {args.plot}: no figure; the result is in {display_name_out(args.output)}")
+        raise SystemExit(EXIT_INTERRUPTED) from None
+    except Exception as exc:  # the result is written: losing the figure must not look like losing it
+        warn(f"the figure {args.plot} was not drawn ({type(exc).__name__}: {' '.join(str(exc).split())}); "
+             f"the result is in {display_name_out(args.output)}")
+        return False
+    return True
+
+
+def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict) -> None:
+    """The summary, on stdout (stderr when stdout carries the result or the report)."""
+    out = sys.stderr if STDIO in (args.output, args.report) else sys.stdout
+    lines = [
+        f"input:          {display_name(args.input)} ({graph.num_vertices} vertices, {graph.num_edges} edges)",
+        f"file cost:      {fmt_cost(file_cost)}",
+        f"initial cost:   {fmt_cost(result.initial_cost)} (after {args.init} initialisation)",
+        f"final cost:     {fmt_cost(result.final_cost)} (cost = ½χ² = ½ Σ eᵀΩe, gtsam's error)",
+        f"final χ²:       {fmt_cost(chi2['chi2'])} (Σ eᵀΩe, as g2o prints it)",
+        f"χ²/dof:         {chi2['chi2_per_dof']:.4g} (dof = {_dof_text(graph, chi2)}; ≈ 1 when the "
+        "information matrices describe the noise)",
+        f"iterations:     {result.iterations}",
+        f"termination:    {result.termination} ({stop_reason(result, params)})",
+        f"linear solver:  {result.linear_solver}",
+        "seconds:        " + ", ".join(f"{k} {v:.3f}" for k, v in seconds.items())
+        + f", total {sum(seconds.values()):.3f}",
+        f"output:         {display_name_out(args.output)}" + "".join(f", {p}" for p in (args.report, args.plot) if p),
+    ]
+    if args.stats:
+        lines += _stats_table(chi2)
+    print("\n".join(lines), file=out, flush=True)
+
+
+def _dof_text(graph, chi2: dict) -> str:
+    d = graph.information.shape[-1]
+    free = (d * graph.num_edges - chi2["dof"]) // d
+    return f"{d}·{graph.num_edges} edges − {d}·{free} free poses = {chi2['dof']}"
+
+
+def _stats_table(chi2: dict) -> list[str]:
+    """``--stats``: count, χ² and χ²/edge per edge kind at the result (g2o's ``-stats``, by kind)."""
+    rows = [("odometry", chi2["by_kind"]["odometry"]), ("loop closure", chi2["by_kind"]["loop_closure"])]
+    count = sum(r["count"] for _, r in rows)
+    rows.append(("all", {"count": count, "chi2": chi2["chi2"],
+                         "chi2_per_edge": chi2["chi2"] / count if count else float("nan")}))
+    lines = [f"{'edges':<14}{'count':>8}{'χ²':>16}{'χ²/edge':>14}"]
+    lines += [f"{name:<14}{r['count']:>8}{r['chi2']:>16.6g}{r['chi2_per_edge']:>14.4g}" for name, r in rows]
+    return lines
+
+
+def _warn_if_chi2_high(chi2: dict) -> None:
+    """One warning when χ²/dof is far above 1 (:data:`posegraph.report.CHI2_PER_DOF_WARNING`)."""
+    from posegraph.report import CHI2_PER_DOF_WARNING
+
+    if not chi2["chi2_per_dof"] > CHI2_PER_DOF_WARNING:
+        return
+    worst = ", ".join(
+        (f"line {e['line']}" if e["line"] is not None else "edge")
+        + f" ({e['from_id']}->{e['to_id']}, χ² {e['chi2']:.3g})" for e in chi2["worst_edges"]
+    )
+    warn(f"χ²/dof = {chi2['chi2_per_dof']:.3g} is far above the ≈1 the information matrices predict "
+         f"(> {CHI2_PER_DOF_WARNING:g}): outliers or overconfident edges? largest χ²: {worst}; "
+         "try --robust gnc")

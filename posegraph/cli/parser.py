@@ -16,8 +16,9 @@ COMMANDS = ("optimize", "compare", "verify-jacobians", "info", "eval", "plot", "
 """The subcommands, in the order of ``--help``; ``posegraph.cli.<name with _ for ->`` implements each."""
 
 DESCRIPTION = "SE(3) pose-graph optimisation over g2o files, cross-checked against gtsam."
-EPILOG = """exit status: 0 success, 1 not converged / checks or comparison failed (results still
-written), 2 bad input or usage (nothing written), 130 interrupted.
+EPILOG = """exit status: 0 success, 1 not converged / figure not drawn / checks or comparison failed
+(results still written), 2 bad input or usage (nothing written), 3 internal error (rerun with
+--debug), 130 interrupted.
 
 examples:
   posegraph info sphere2500.g2o
@@ -39,6 +40,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = ArgumentParser(prog=PROG, description=DESCRIPTION, epilog=EPILOG,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action=_VersionAction, nargs=0, help="print the version and exit")
+    _debug_option(parser)
     sub = parser.add_subparsers(dest="command", metavar="<command>", parser_class=ArgumentParser)
     sub.required = True
     for name in COMMANDS if only is None else (only,):
@@ -60,7 +62,13 @@ def _add_command(sub, module) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     module.add_arguments(p)
+    _debug_option(p)
     p.set_defaults(func=module.run)
+
+
+def _debug_option(p: argparse.ArgumentParser) -> None:
+    """``--debug`` (read by :func:`posegraph.cli.program.main` from the raw command line)."""
+    p.add_argument("--debug", action="store_true", help="on an internal error, show its traceback")
 
 
 def _version() -> str:

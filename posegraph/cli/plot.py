@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from posegraph.cli.common import (
-    EXIT_OK, Status, UsageError, check_output, read_graph, repair_option, require_matplotlib,
+    EXIT_OK, Status, UsageError, check_figure, check_inputs, display_name, read_graph, repair_option,
 )
 
 NAME = "plot"
@@ -20,7 +20,7 @@ EXAMPLES = """
 
 
 def add_arguments(p) -> None:
-    p.add_argument("input", metavar="IN.g2o", help="pose graph to draw")
+    p.add_argument("input", metavar="IN.g2o", help="pose graph to draw (- for standard input)")
     p.add_argument("more", metavar="MORE.g2o", nargs="*", help="more graphs overlaid")
     repair_option(p)
     p.add_argument("-o", "--output", metavar="FIG.png", required=True,
@@ -32,15 +32,15 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     inputs = [args.input, *args.more]
-    check_output(args.output, inputs=inputs, what="figure")
     if args.labels is not None and len(args.labels) != len(inputs):
         raise UsageError(f"--labels needs {len(inputs)} names (one per input), got {len(args.labels)}")
-    require_matplotlib()
+    check_inputs(inputs)
+    check_figure(args.output, inputs=inputs)
     from posegraph.plot import plot_trajectories
 
     status = Status(True)
     graphs = [read_graph(path, status, require_edges=False, repair_information=args.repair_information)[0]
               for path in inputs]
-    labels = args.labels or [os.path.basename(p) for p in inputs]
+    labels = args.labels or [os.path.basename(display_name(p)) for p in inputs]
     plot_trajectories(args.output, graphs, labels, loop_closures=not args.no_loop_closures, title=args.title)
     return EXIT_OK

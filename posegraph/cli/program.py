@@ -6,20 +6,43 @@ import sys
 import warnings
 
 from posegraph.cli.common import (
-    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_USAGE, OPTIONAL_MODULES, PROG, UsageError, WarningPrinter, error,
+    EXIT_BUG, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_USAGE, OPTIONAL_MODULES, PROG, UsageError, WarningPrinter,
+    error,
 )
 from posegraph.cli.parser import COMMANDS, build_parser
 
 
+DEBUG_OPTION = "--debug"
+"""Anywhere on the command line: an internal error shows its traceback instead of one line."""
+
+
 def main(argv=None) -> int:
-    """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
+    """Run the command line with ``argv`` (default ``sys.argv[1:]``) and return the exit status.
+
+    Every exception ends as one line on stderr and an exit status (docs/cli.md): a user's mistake
+    as status 2, a bug (any other exception) as status 3 with a hint to rerun with ``--debug``,
+    which re-raises it with its traceback.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        return _run(argv)
+    except Exception as exc:  # a bug of ours, not a user's mistake
+        if DEBUG_OPTION in argv:
+            raise
+        text = " ".join(str(exc).split())[:300]
+        error(f"internal error ({type(exc).__name__}: {text}); rerun with {DEBUG_OPTION} for the traceback "
+              "and report it")
+        return EXIT_BUG
+
+
+def _run(argv: list) -> int:
+    """Parse and run; map a user's mistakes (and Ctrl-C) to one line and an exit status; bugs propagate."""
     printer = WarningPrinter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always")
             warnings.showwarning = printer
             try:
-                argv = sys.argv[1:] if argv is None else list(argv)
                 named = argv[0] if argv and argv[0] in COMMANDS else None
                 args = build_parser(only=named).parse_args(argv)
                 return args.func(args)
@@ -35,7 +58,7 @@ def main(argv=None) -> int:
         return exc.code if isinstance(exc.code, int) else 0
     except ImportError as exc:
         # An optional dependency is missing: say so in one line (our messages include how to install
-        # it). Any other ImportError is a bug of ours and keeps its traceback.
+        # it). Any other ImportError is a bug of ours (main reports it).
         if exc.name not in OPTIONAL_MODULES and "pip install" not in str(exc):
             raise
         error(" ".join(str(exc).split()))

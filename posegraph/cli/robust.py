@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 import numpy as np
 
@@ -55,7 +56,7 @@ def check_robust_options(args) -> None:
         raise UsageError("--drop-outliers needs a robust loss (--robust NAME)")
     if args.robust_scale is not None and args.robust == "none":
         raise UsageError("--robust-scale needs a robust loss (--robust NAME)")
-    if args.drop_outliers and os.path.exists(args.output) and os.path.samefile(args.output, args.input):
+    if args.drop_outliers and "-" not in (args.input, args.output) and os.path.exists(args.output) and os.path.samefile(args.output, args.input):
         raise UsageError(f"--drop-outliers never overwrites the input {args.input}: choose another OUT")
 
 
@@ -94,6 +95,23 @@ def final_weights(graph, args, result, robust) -> np.ndarray | None:
     return np.asarray(loss.weight(squared_residuals(graph, result.poses)), dtype=np.float64)
 
 
+def robust_summary(graph, weights: np.ndarray | None, args) -> None:
+    """Print the outlier line of the summary, if robust: after the others, on the same stream
+    (stderr when standard output carries the result or the report)."""
+    if weights is not None:
+        out = sys.stderr if "-" in (args.output, args.report) else sys.stdout
+        print(outlier_line(graph, weights), file=out, flush=True)
+
+
+def robust_report(report: dict, args, weights: np.ndarray | None) -> dict:
+    """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
+    indices with final weight below 0.5) when robust; unchanged otherwise."""
+    if weights is not None:
+        report["robust"] = args.robust
+        report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
+    return report
+
+
 def outlier_line(graph, weights: np.ndarray) -> str:
     """The summary line: how many loop closures (and odometry edges, if any) were judged outliers."""
     outlier = weights < OUTLIER_WEIGHT
@@ -104,9 +122,9 @@ def outlier_line(graph, weights: np.ndarray) -> str:
     return line + (f", and {rejected_odometry} odometry edges" if rejected_odometry else "")
 
 
-def output_graph(graph, weights: np.ndarray | None, args):
-    """The graph to write: without the outliers with ``--drop-outliers``, else ``graph``."""
-    if not args.drop_outliers or weights is None:
+def output_graph(graph, weights: np.ndarray | None, *, drop: bool):
+    """``graph`` without the edges judged outliers when ``drop`` and robust, else ``graph``."""
+    if not drop or weights is None:
         return graph
     from posegraph.robust.active import edge_subgraph
 

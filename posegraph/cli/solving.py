@@ -14,8 +14,8 @@ def solver_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", choices=("chordal", "odometry", "file"), default="chordal",
                    help="start: chordal relaxation of the rotations (default), chaining the odometry "
                         "edges, or the poses in the file")
-    p.add_argument("--max-iterations", type=non_negative_int, default=100, metavar="N",
-                   help="iteration cap (default 100); reaching it gives exit status 1")
+    p.add_argument("-i", "--max-iterations", type=non_negative_int, default=100, metavar="N",
+                   help="iteration cap (default 100; -i as in g2o); reaching it gives exit status 1")
     p.add_argument("--relative-tolerance", type=non_negative_float, default=None, metavar="TOL",
                    help="stop when an iteration lowers the cost by at most this fraction "
                         "(default: the solver's, 1e-7)")
@@ -23,8 +23,8 @@ def solver_options(p: argparse.ArgumentParser) -> None:
                    help="stop when an iteration lowers the cost by at most this much "
                         "(default: the solver's, 1e-12)")
     p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy"), default="auto",
-                   help="sparse Cholesky backend: CHOLMOD (the system library, else scikit-sparse) or scipy; auto picks "
-                        "CHOLMOD when installed")
+                   help="sparse solver: CHOLMOD (from the cvxopt wheel) or scipy's SuperLU; auto picks "
+                        "CHOLMOD when cvxopt is installed")
 
 
 def solver_params(args, callback=None):
@@ -54,13 +54,54 @@ def initial_poses(graph, args):
     return initialize(graph, method=args.init)
 
 
-def iteration_printer(status: Status):
-    """A solver callback printing one line per iteration on ``status``."""
+def iteration_printer(status: Status, max_iterations: int):
+    """A solver callback printing one line per iteration on ``status``: ``iter k/max``, cost,
+    decrease, LM λ, seconds, and why no step was taken when none was."""
+    width = len(str(max_iterations))
+
     def callback(record) -> None:
-        note = "" if record.accepted else "  (step rejected)"
         status(
-            f"  iter {record.iteration:3d}  cost {record.cost:.10e}  decrease {record.cost_decrease:.3e}  "
-            f"lambda {record.lambda_:.1e}  {record.seconds:.3f} s{note}"
+            f"  iter {record.iteration:>{width}}/{max_iterations}  cost {record.cost:.10e}  "
+            f"decrease {record.cost_decrease:.3e}  lambda {record.lambda_:.1e}  {record.seconds:.3f} s"
+            f"{_no_step_note(record)}"
         )
 
     return callback
+
+
+def _no_step_note(record) -> str:
+    if record.accepted:
+        return ""
+    if record.step_norm == 0:  # the solver judged a step not worth taking: its stop test follows
+        return "  (no step needed)"
+    return "  (step rejected)"
+
+
+def stop_reason(result, params) -> str:
+    """Why the solver stopped, in words with the numbers that decided it (one line, no newline).
+
+    ``result.termination`` is the solver's reason (:class:`posegraph.solve.result.OptimizeResult`);
+    the decrease quoted is that of the last accepted step, relative to the cost before it.
+    """
+    accepted = [r for r in result.records if r.accepted]
+    decrease = accepted[-1].cost_decrease if accepted else 0.0
+    before = accepted[-1].cost + decrease if accepted else 0.0
+    relative = decrease / before if before > 0 else 0.0
+    reasons = {
+        "converged: relative decrease": (
+            f"the last step lowered the cost by {relative:.1e} of it, within the relative tolerance "
+            f"{params.relative_tolerance:g}"),
+        "converged: absolute decrease": (
+            f"the last step lowered the cost by {decrease:.1e}, within the "
+            f"absolute tolerance {params.absolute_tolerance:g}"),
+        "converged: cost below tolerance": "the cost is below the cost tolerance",
+        "converged: predicted decrease below tolerance": "no step can lower the cost by more than the tolerances",
+        "converged: Newton decrement below tolerance": (
+            "a further step would lower the cost by far less than the tolerances"),
+        "converged: nothing to optimise": "every vertex is held (FIX or gauge anchor)",
+        "maximum iterations": (
+            f"the iteration cap ({params.max_iterations}, --max-iterations/-i) came before convergence"),
+        "lambda exceeded bound": "no damped step lowered the cost (LM's lambda passed its bound)",
+        "no decrease": "no step, nor any shortening of it, lowered the cost (Gauss-Newton)",
+    }
+    return reasons.get(result.termination, result.termination)

@@ -84,13 +84,14 @@ def keep_freed_memory() -> bool:
 def single_threaded_blas() -> None:
     """Make OpenBLAS start with one thread in this process, unless ``OPENBLAS_NUM_THREADS`` is set.
 
-    Must run before numpy is imported (OpenBLAS reads the variable when it loads). Both OpenBLAS
-    builds in the process — numpy's bundled one and the system one under CHOLMOD — otherwise
-    start a worker thread per core at load, which busy-waits for work while the main thread goes
-    on importing: on the 2-core machine here ``import numpy`` took 0.14 s against 0.09 s with one
-    thread, and a whole ``posegraph optimize`` ~30 ms longer. Nothing on this path wants more:
-    numpy only multiplies small matrices, and the solver runs CHOLMOD's BLAS on one thread anyway
-    (``SolverParams.blas_threads``).
+    Must run before numpy is imported (OpenBLAS reads the variable when it loads). A threaded
+    OpenBLAS — numpy's bundled one, and cvxopt's under CHOLMOD where its wheel bundles a threaded
+    build — otherwise starts a worker thread per core at load, which busy-waits for work while the
+    main thread goes on importing: on the 2-core machine here ``import numpy`` took 0.14 s against
+    0.09 s with one thread, and a whole ``posegraph optimize`` ~30 ms longer. Nothing on this path
+    wants more: numpy only multiplies small matrices, and the solver runs CHOLMOD's BLAS on one
+    thread anyway (``SolverParams.blas_threads``), which with the variable set needs no
+    threadpoolctl (:class:`posegraph.native_threads.NativeThreads`).
     """
     if "numpy" not in sys.modules:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -99,19 +100,16 @@ def single_threaded_blas() -> None:
 def import_solver_modules() -> None:
     """Import what the read / initialise / optimise phases use, so that their timings are work,
     not first-use imports. Only those: scipy.sparse.linalg (SuperLU) and scipy.sparse.csgraph
-    (odometry start) import on first use, as they are needed only off the default path. With the
-    system CHOLMOD usable directly (:mod:`posegraph.cholmod`) that path needs no scipy at all,
-    and scipy and scikit-sparse are not imported (~0.14 s less per run)."""
-    import contextlib
-
+    (odometry start) import on first use, as they are needed only off the default path. With
+    CHOLMOD from cvxopt (:mod:`posegraph.cholmod`, ~10 ms to import) that path needs no scipy at
+    all (~0.14 s less per run); without cvxopt, SuperLU's route needs ``scipy.sparse``, imported
+    here by :func:`import_scipy_sparse`."""
     single_threaded_blas()
     keep_freed_memory()
     from posegraph import cholmod
 
     if cholmod.load() is None:
         import_scipy_sparse()
-        with contextlib.suppress(ImportError):
-            import sksparse.cholmod  # noqa: F401
 
     import posegraph.init  # noqa: F401
     import posegraph.io.g2o  # noqa: F401

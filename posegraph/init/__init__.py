@@ -9,7 +9,7 @@ Gauss-Newton and Levenberg-Marquardt only find the optimum from a good start. Th
   the cost given them (:func:`posegraph.init.chordal.chordal_initialization`).
 
 Every method keeps fixed vertices and each unfixed component's anchor at their file pose
-(:mod:`posegraph.init.gauge`), as the solver does. ``docs/initialisation.md`` explains the weight
+(:func:`posegraph.graph.held_vertices`), as the solver does. ``docs/initialisation.md`` explains the weight
 choices and records measured costs and timings against gtsam's ``InitializePose3``.
 """
 

@@ -7,7 +7,7 @@ Both the chordal rotations and the translations given rotations minimise, over o
 
 with a 3×3 transfer ``P_e``, a 3×3 symmetric positive-definite weight ``W_e`` and an offset
 ``h_e`` (given as ``g_e = W_e h_e``, which is what the normal equations need). Held vertices
-(fixed and anchors, :mod:`posegraph.init.gauge`) are *eliminated*, not softly anchored by a
+(fixed and anchors, :func:`posegraph.graph.held_vertices`) are *eliminated*, not softly anchored by a
 prior: their blocks move to the right-hand side. Setting the gradient to zero gives, per edge,
 the normal-equation blocks
 

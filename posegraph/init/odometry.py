@@ -1,7 +1,7 @@
 """Odometry (spanning-tree) initialisation: compose measurements outward from the held vertices.
 
 Every component is covered by a spanning tree rooted at its held vertices (its fixed vertices,
-or else its anchor; :mod:`posegraph.init.gauge`). A held vertex keeps its file pose; every other
+or else its anchor; :func:`posegraph.graph.held_vertices`). A held vertex keeps its file pose; every other
 vertex ``v`` with tree parent ``p`` along edge ``e`` gets
 
     ``X_v = X_p Z_e``     if ``e`` goes ``p → v``,

@@ -11,6 +11,7 @@ entry there. The format, checks and repairs are described in ``docs/g2o.md``.
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from dataclasses import replace
 from typing import NamedTuple
@@ -67,7 +68,8 @@ def read_g2o(
         The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
         lines, and gtsam's older ``VERTEX3`` / ``EDGE3``; see ``docs/g2o.md``
         for the format and the checks), plain or gzip/bzip2/xz-compressed
-        (:func:`posegraph.io.text_input.read_text`).
+        (:func:`posegraph.io.text_input.read_text`); ``"-"`` reads standard input
+        (messages then name ``<stdin>``).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
         file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
@@ -88,8 +90,9 @@ def read_g2o(
         ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
         (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information
         (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
-        ``gtsam.readG2o`` does), ``fixed (n,)`` and ``source`` (the absolute
-        path read).
+        ``gtsam.readG2o`` does), ``fixed (n,)``, ``source`` (the absolute
+        path read), ``edge_lines (m,)`` (each edge's line in the file) and
+        ``group`` :data:`~posegraph.lie.group.SE3`.
 
     Raises
     ------
@@ -110,6 +113,9 @@ def read_g2o(
         several connected components (one warning each, after all checks pass).
     """
     name = os.fspath(path)
+    if name == "-":  # standard input, as g2o's and Unix tools' "-"
+        text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
+        return _parse(text, "<stdin>", None, require_edges=require_edges, repair_information=repair_information)
     text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
     return _parse(
         text, name, source=os.path.abspath(name), require_edges=require_edges, repair_information=repair_information
@@ -129,7 +135,7 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
     vertices, edges, information, value_notes = _values(records, lines, path, repair_information)
     notes += value_notes
     # Stage 3: an empty graph.
-    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, require_edges, path)
+    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, first_line, require_edges, path)
     notes += empty_notes
     # Stage 4: the graph.
     edge_index, fixed = topology(vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path)
@@ -142,6 +148,7 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         information=information,
         fixed=fixed,
         source=source,
+        edge_lines=edges.numbers.copy(),
     )
     if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
         # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
@@ -211,15 +218,20 @@ def _values(records: dict[str, np.ndarray], lines: dict[str, Lines], path: str, 
 
 
 def _vertices_or_refusal(
-    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], require_edges: bool, path: str
+    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], first_line: dict[str, int], require_edges: bool,
+    path: str,
 ) -> tuple[_Poses, list[str]]:
-    """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file)."""
+    """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
+
+    A file with no pose-graph line at all is described by its first line with data and at most
+    three more of its tags (``skipped`` keeps the tags in the order they first occur), not by
+    every word of a text file.
+    """
     if len(vertices.ids) == 0:
         if len(edges.ids) == 0:
-            also = f" (the file has only: {', '.join(sorted(skipped))})" if skipped else ""
             raise GraphError(
                 f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}, nor edges): there is no 3D pose graph "
-                f"to read{also}",
+                f"to read{_first_unread_line(skipped, first_line)}",
                 path,
             )
         if not require_edges:
@@ -233,6 +245,20 @@ def _vertices_or_refusal(
     if len(edges.ids) == 0 and require_edges:
         raise GraphError(f"the file has no {EDGE_TAG} lines (nor {EDGE3_TAG}): there is nothing to optimise", path)
     return vertices, []
+
+
+def _first_unread_line(skipped: dict[str, int], first_line: dict[str, int]) -> str:
+    """``"; … line 3, begins with 'The'"``: where a file without pose-graph lines starts, and up to three
+    more of its g2o-like tags (upper-case words such as ``EDGE_SE3_TRACKXYZ``), or ``""``."""
+    if not skipped:
+        return ""
+    first = next(iter(skipped))
+    text = f"; its first line with data, line {first_line[first]}, begins with {first[:40]!r}"
+    others = [tag for tag in skipped if tag != first and tag[:1].isupper() and tag.replace(":", "_").isidentifier()
+              and tag.upper() == tag]
+    if others:
+        text += " (other tags: " + ", ".join(others[:3]) + (", …" if len(others) > 3 else "") + ")"
+    return text
 
 
 def _rotations_or_identity(q: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """One small interface to a matrix Lie group, so that the solver is written once for all of them.
 
 A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`
-today; ``se2`` and ``sim3`` modules with the same function names later) with the two sizes the
+for :data:`SE3`; :mod:`posegraph.lie.se2` has the same function names) with the two sizes the
 solver needs: the tangent dimension (the block size of the normal equations) and the size of the
 matrices that represent the elements. Conventions are the project's (``docs/architecture.md``):
 right perturbations ``X ⊕ δ = X·Exp(δ)``, ``Y ⊖ X = Log(X⁻¹Y)``, right Jacobians, tangent order as

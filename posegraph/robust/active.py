@@ -27,8 +27,8 @@ __all__ = ["edge_subgraph", "ActiveEdgeSolves"]
 
 
 def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None = None) -> PoseGraph:
-    """``graph`` with only the edges ``keep`` (indices ``(k,)`` in edge order), their information
-    scaled by ``weights[keep]`` when given. The file's edge lines (``edge_source``) stay with the
+    """``graph`` with only the edges ``keep`` (indices ``(k,)`` in edge order, with their file line
+    numbers ``edge_lines``), their information scaled by ``weights[keep]`` when given. The file's edge lines (``edge_source``) stay with the
     kept edges only when they stated the edges before (checksum) and no weight changed them."""
     keep = np.asarray(keep, dtype=np.int64)
     information = graph.information[keep]
@@ -41,6 +41,7 @@ def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None
         measurements=graph.measurements[keep],
         information=information,
         edge_source=None,
+        edge_lines=None if graph.edge_lines is None else graph.edge_lines[keep],
     )
     source = graph.edge_source
     if weights is None and source is not None and source.matches(graph):

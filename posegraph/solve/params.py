@@ -135,23 +135,28 @@ class SolverParams:
     """LM with ``diagonal_damping``: upper clamp of diag(H) in the damping term (gtsam's ``maxDiagonal``)."""
 
     linear_solver: str = "auto"
-    """Sparse solver for the normal equations: ``"cholmod"`` (scikit-sparse, supernodal Cholesky,
-    symbolic analysis once per graph), ``"scipy"`` (SuperLU in symmetric mode; needs only scipy),
-    or ``"auto"`` (CHOLMOD when importable, else scipy)."""
+    """Sparse solver for the normal equations (:func:`posegraph.solve.linear.make_linear_solver`):
+    ``"cholmod"`` (CHOLMOD's supernodal Cholesky from the cvxopt wheel, :mod:`posegraph.cholmod`;
+    symbolic analysis once per graph), ``"scipy"`` (SuperLU without pivoting in symmetric mode;
+    needs only scipy), or ``"auto"`` (CHOLMOD when cvxopt imports, else scipy). Figures in
+    ``docs/cholesky.md``."""
 
     ordering: str = "auto"
-    """Fill-reducing ordering for ``"cholmod"``: ``"amd"``, ``"metis"``, ``"nesdis"``, ``"best"`` or
-    ``"auto"``: AMD below 10,000 free vertices, nested dissection from there on (measured fastest on
-    pose graphs: :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES`, ``docs/solver.md``). Ignored by
-    ``"scipy"``."""
+    """Fill-reducing ordering for ``"cholmod"`` (:data:`posegraph.cholmod.ORDERINGS`): ``"amd"``
+    or ``"nesdis"`` (= ``"metis"``: METIS nested dissection through pymetis), both of the vertex
+    graph; ``"natural"``; ``"default"`` (CHOLMOD's own AMD of the scalar pattern); or ``"auto"``:
+    AMD below 10,000 free vertices, nested dissection from there on (measured fastest on pose
+    graphs: :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES`, ``docs/cholesky.md``). Ignored
+    by ``"scipy"``."""
 
     blas_threads: Optional[int] = 1
-    """Threads of the native code under CHOLMOD during its factorisations and solves (restored
-    afterwards): the system OpenBLAS's, and with 1 also CHOLMOD's OpenMP loops, which otherwise ask
-    for four threads each (:mod:`posegraph.native_threads`). None leaves both as they are. On the
-    2-core machine here one thread factorised torus3D in 0.071 s against 0.089 s as CHOLMOD comes
-    when the machine was idle, and 0.069 s against 0.18 s while other jobs ran; raise it on a big,
-    idle machine with large graphs."""
+    """Threads of the OpenBLAS cvxopt bundles under CHOLMOD during its factorisations and solves,
+    restored afterwards (:mod:`posegraph.native_threads`, through threadpoolctl). cvxopt's CHOLMOD
+    has no OpenMP, and the Linux x86_64 wheel's OpenBLAS is single-threaded, so there this changes
+    nothing; it caps a threaded build (other platforms' wheels). None leaves the BLAS as it is.
+    Measured on the system OpenBLAS of an earlier backend, 2-core machine: one thread factorised
+    torus3D in 0.071 s against 0.089 s with the defaults when the machine was idle, and 0.069 s
+    against 0.18 s while other jobs ran; raise it on a big, idle machine with large graphs."""
 
     loss: Optional[Any] = None
     """A robust loss of each edge's squared norm ``s = eᵀΩe`` (:class:`posegraph.solve.objective.Loss`:

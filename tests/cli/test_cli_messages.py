@@ -53,25 +53,32 @@ def test_missing_matplotlib_is_found_before_any_work(monkeypatch, capsys, tmp_pa
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_bug_is_not_disguised_as_a_usage_error(monkeypatch, shared_dataset, tmp_path):
+def test_a_bug_is_one_line_with_a_hint_and_its_traceback_under_debug(monkeypatch, capsys, shared_dataset, tmp_path):
+    """A bug (here an ImportError of our own module) is neither a usage error nor a traceback: exit
+    status 3 and one line pointing at --debug, which shows the traceback."""
     import posegraph.solve as solve
 
     def broken(*args, **kwargs):
         raise ImportError("No module named 'posegraph.nonexistent'", name="posegraph.nonexistent")
 
     monkeypatch.setattr(solve, "optimize", broken)
+    argv = ["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(tmp_path / "out.g2o"), "--quiet"]
+    assert cli.main(argv) == 3
+    line = one_error_line(capsys)
+    assert "internal error" in line and "posegraph.nonexistent" in line and "--debug" in line
     with pytest.raises(ImportError):
-        cli.main(["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(tmp_path / "out.g2o"), "--quiet"])
+        cli.main([*argv, "--debug"])
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_interrupt_while_writing_leaves_nothing(monkeypatch, capsys, tmp_path, shared_dataset):
     """Ctrl-C after the result is staged but while the report is written: no output at all."""
-    import posegraph.atomic as atomic
+    import posegraph.report as report
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(atomic, "write_json_atomic", interrupted)
+    monkeypatch.setattr(report, "optimize_report", interrupted)
     status = cli.main(["optimize", str(shared_dataset("tinyGrid3D")), "-o", str(tmp_path / "out.g2o"),
                        "--report", str(tmp_path / "r.json"), "--quiet"])
     assert status == 130

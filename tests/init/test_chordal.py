@@ -118,6 +118,67 @@ def test_translations_minimise_the_true_cost_at_fixed_rotations():
         assert cost(graph, moved) >= base
 
 
+def _exact_translations(graph, rotations):
+    """The translations minimising the true cost at fixed ``rotations``, by scipy's least squares on
+    the whitened residuals (independent of the initialiser's closed form)."""
+    from scipy.optimize import least_squares
+
+    from posegraph.solve.residuals import edge_residuals
+
+    free = np.flatnonzero(~held_vertices(graph))
+    roots = np.linalg.cholesky(graph.information).transpose(0, 2, 1)  # Lᵀ, so that eᵀΩe = |Lᵀe|²
+    poses = graph.poses.copy()
+    poses[:, :3, :3] = rotations
+
+    def whitened(t):
+        poses[free, :3, 3] = t.reshape(-1, 3)
+        return np.einsum("eij,ej->ei", roots, edge_residuals(poses, graph)).ravel()
+
+    solution = least_squares(whitened, poses[free, :3, 3].ravel(), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    out = poses[:, :3, 3].copy()
+    out[free] = solution.x.reshape(-1, 3)
+    return out
+
+
+def test_translation_stage_uses_the_rotation_translation_coupling():
+    """Stage 2 with coupled information (Ω_vω ≠ 0) and rotation errors δ ≠ 0 (noise): its
+    translations are the exact minimiser of the true cost at those rotations, which the same
+    stage without the Ω_vω term misses by far more than the tolerance."""
+    graph, _ = synthetic.hard_graph(14, info_range=(1e-1, 1e2))
+    rotations = chordal_rotations(graph)
+    exact = _exact_translations(graph, rotations)
+    np.testing.assert_allclose(translations_given_rotations(graph, rotations), exact, rtol=0, atol=1e-7)
+    uncoupled_information = graph.information.copy()
+    uncoupled_information[:, 3:, :3] = 0.0
+    uncoupled_information[:, :3, 3:] = 0.0
+    uncoupled = PoseGraph(graph.ids, graph.poses, graph.edge_from, graph.edge_to, graph.measurements,
+                          uncoupled_information, graph.fixed)
+    assert np.abs(translations_given_rotations(uncoupled, rotations) - exact).max() > 1e-2  # measured 0.14
+
+
+def test_rotation_weights_are_the_mean_rotational_information_in_the_chordal_stage():
+    """Two parallel edges 0 → 1 disagreeing about R_1, with anisotropic Ω_ωω: the chordal answer is
+    the projection of w₁Z₁ + w₂Z₂ onto SO(3) with w = tr(Ω_ωω)/3, not with equal weights or with
+    the first diagonal entry (gtsam's InitializePose3 weight)."""
+    from posegraph.lie import so3
+
+    z = so3.exp(np.array([[0.4, 0.0, 0.0], [0.0, 0.0, -0.4]]))
+    information = np.stack([np.diag([100.0, 1, 1, 1, 1, 1]), np.diag([1.0, 1, 40, 1, 1, 1])])
+    measurements = np.tile(np.eye(4), (2, 1, 1))
+    measurements[:, :3, :3] = z
+    graph = PoseGraph(np.array([0, 1]), np.tile(np.eye(4), (2, 1, 1)), np.array([0, 0]), np.array([1, 1]),
+                      measurements, information)
+    rotation = chordal_rotations(graph)[1]
+
+    def blend(w):
+        return so3.project(w[0] * z[0] + w[1] * z[1])
+
+    np.testing.assert_allclose(rotation, blend(np.trace(information[:, :3, :3], axis1=1, axis2=2) / 3), atol=1e-12)
+    for other in (np.ones(2), information[:, 0, 0]):
+        angle = so3.log(blend(other).T @ rotation)
+        assert np.linalg.norm(angle) > 0.05  # the weights decide the answer here
+
+
 def _gtsam_lm_cost(graph, start) -> float:
     """gtsam's LM from ``start`` (gauge priors on our held vertices), tolerances 1e-14: a reference optimum."""
     pytest.importorskip("gtsam")
@@ -233,7 +294,13 @@ def _gtsam_initialize_cost(graph):
     return factors.error(values), values_to_poses(values, graph.ids)
 
 
-@pytest.mark.parametrize("dataset", ["smallGrid3D", "sphere2500", "torus3D"])
+# Our chordal start's cost over gtsam InitializePose3's, measured (gtsam 4.3): smallGrid3D 0.4926,
+# sphere2500 0.4063, torus3D 0.9960, parking-garage 0.0015. Each bound is the measurement plus a
+# margin of at most 4 % of it (for numerical and ordering noise), and never above 1, the test's claim.
+CHORDAL_OVER_GTSAM_BOUND = {"smallGrid3D": 0.51, "sphere2500": 0.42, "torus3D": 1.0, "parking-garage": 0.00155}
+
+
+@pytest.mark.parametrize("dataset", sorted(CHORDAL_OVER_GTSAM_BOUND))
 def test_chordal_start_is_no_worse_than_gtsam_initialize_pose3(dataset, shared_dataset):
     """The issue's check: gtsam.readG2o of the file, prior on the first pose, cost without it."""
     gtsam = pytest.importorskip("gtsam")
@@ -242,7 +309,8 @@ def test_chordal_start_is_no_worse_than_gtsam_initialize_pose3(dataset, shared_d
     path = shared_dataset(dataset)
     factors, initial = gtsam.readG2o(str(path), True)
     gtsam_cost = factors.error(_gtsam_initialize(factors, 0, initial.atPose3(0).matrix()))
-    assert cost(read_g2o(path), chordal_initialization(read_g2o(path))) <= 1.05 * gtsam_cost
+    ours = cost(read_g2o(path), chordal_initialization(read_g2o(path)))
+    assert ours <= CHORDAL_OVER_GTSAM_BOUND[dataset] * gtsam_cost
 
 
 def test_where_gtsam_initialize_pose3_is_misled_ours_is_not():

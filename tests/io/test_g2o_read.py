@@ -12,6 +12,7 @@ import pytest
 from posegraph.errors import InputWarning
 from posegraph.graph import connected_components
 from posegraph.io.g2o import read_g2o
+from tests.conftest import INDEFINITE_INFORMATION
 
 UPPER = [(r, c) for r in range(6) for c in range(r, 6)]
 
@@ -262,11 +263,9 @@ def test_shared_dataset_reads_with_consistent_arrays(shared_g2o_file):
         for line in handle:
             tag = line.split(None, 1)[0] if line.strip() else None
             counts[tag] = counts.get(tag, 0) + 1
-    if shared_g2o_file.name == "cubicle.g2o":
-        pytest.skip("cubicle.g2o is rejected (indefinite information); see test_against_gtsam")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InputWarning)
-        graph = read_g2o(shared_g2o_file)
+        graph = read_g2o(shared_g2o_file, repair_information=shared_g2o_file.name in INDEFINITE_INFORMATION)
     n, m = graph.num_vertices, graph.num_edges
     assert (n, m) == (counts["VERTEX_SE3:QUAT"], counts["EDGE_SE3:QUAT"])
     assert graph.poses.shape == (n, 4, 4) and graph.measurements.shape == (m, 4, 4)

@@ -6,10 +6,29 @@ import numpy as np
 import pytest
 
 
-def gtsam_graph(path):
-    """``(graph, values)`` as ``gtsam.readG2o(path, is3D=True)`` builds them (skips without gtsam)."""
+def gtsam_graph(path, graph=None):
+    """``(graph, values)`` as ``gtsam.readG2o(path, is3D=True)`` builds them (skips without gtsam).
+
+    For a file whose information the reader repairs (``tests.conftest.INDEFINITE_INFORMATION``),
+    pass our ``graph`` of it: gtsam then gets its factors with the repaired matrices
+    (:func:`posegraph.gtsam_bridge.graph_to_gtsam`), since ``readG2o`` would replace each indefinite
+    matrix by RᵀR of a partial Cholesky factor (tests/io/test_against_gtsam.py compares the rest).
+    """
     gtsam = pytest.importorskip("gtsam")
-    return gtsam.readG2o(str(path), True)
+    factors, values = gtsam.readG2o(str(path), True)
+    if graph is not None and _needs_repair(path):
+        from posegraph.gtsam_bridge import graph_to_gtsam
+
+        factors = graph_to_gtsam(graph)
+    return factors, values
+
+
+def _needs_repair(path) -> bool:
+    from pathlib import Path
+
+    from tests.conftest import INDEFINITE_INFORMATION
+
+    return Path(path).name in INDEFINITE_INFORMATION
 
 
 def values_from_poses(ids, poses):
@@ -33,16 +52,9 @@ def perturbed_poses(poses, rng, rotation_scale=1.0, translation_scale=1.0):
     return poses @ motion
 
 
-def read_or_skip(path):
-    """``read_g2o(path)``, skipping the test when our reader refuses the file by policy.
-
-    (cubicle.g2o has information matrices that are not positive semi-definite, which
-    :func:`posegraph.io.g2o.read_g2o` rejects while gtsam reads them.)
-    """
-    from posegraph.errors import InputError
+def read_shared_file(path):
+    """``read_g2o(path)``; with ``repair_information=True`` for the files that need it
+    (``tests.conftest.INDEFINITE_INFORMATION``: cubicle.g2o, which the reader refuses by default)."""
     from posegraph.io.g2o import read_g2o
 
-    try:
-        return read_g2o(path)
-    except InputError as err:
-        pytest.skip(f"read_g2o refuses this file: {err.reason}")
+    return read_g2o(path, repair_information=_needs_repair(path))

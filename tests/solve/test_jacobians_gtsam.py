@@ -9,7 +9,7 @@ from posegraph.io.g2o import read_g2o
 from posegraph.lie import se3
 from posegraph.solve.linearize import linearize
 from posegraph.solve.residuals import edge_jacobians, edge_residuals
-from tests.solve.gtsam_reference import gtsam_graph, perturbed_poses, read_or_skip, values_from_poses
+from tests.solve.gtsam_reference import gtsam_graph, perturbed_poses, read_shared_file, values_from_poses
 from tests.solve.test_residuals import make_graph
 
 MAX_EDGES = 600  # per file: gtsam's per-factor linearize is a Python call each
@@ -59,8 +59,8 @@ def central_differences(first, second, measurements, h=1e-6):
 
 
 def check_against_gtsam(path, poses_of):
-    graph = read_or_skip(path)
-    factors, _ = gtsam_graph(path)
+    graph = read_shared_file(path)
+    factors, _ = gtsam_graph(path, graph)
     poses = poses_of(graph)
     values = values_from_poses(graph.ids, poses)
     count = min(factors.size(), MAX_EDGES)

@@ -79,10 +79,15 @@ def test_backends_reach_the_same_optimum(shared_dataset, cholmod_backend):
 
 @pytest.mark.slow
 def test_torus3d_from_file_at_least_as_good_as_gtsam(shared_dataset):
+    """From the file's poses LM crawls (about 0.05 a step near iteration 100, where the default cap
+    would stop it below gtsam's cost without converging); with room it stops on its own convergence
+    test, measured at 137 iterations and 29950.04. The cap leaves twice that room."""
     graph = read_g2o(shared_dataset("torus3D"))
-    result = optimize(graph, initial="file", params=SolverParams(method="lm"))
+    params = SolverParams(method="lm", max_iterations=300)
+    result = optimize(graph, initial="file", params=params)
+    assert result.converged, result.termination  # not stopped by the cap
+    assert result.iterations < params.max_iterations
     assert result.final_cost <= GTSAM_TORUS3D_FROM_FILE
-    assert result.iterations <= 100
 
 
 @pytest.mark.slow
