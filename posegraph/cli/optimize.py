@@ -226,8 +226,9 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
 
 def _dof_text(graph, chi2: dict) -> str:
     d = graph.information.shape[-1]
-    free = (d * graph.num_edges - chi2["dof"]) // d
-    return f"{d}·{graph.num_edges} edges − {d}·{free} free poses = {chi2['dof']}"
+    edges = sum(kind["count"] for kind in chi2["by_kind"].values())  # with --robust: the inliers
+    free = (d * edges - chi2["dof"]) // d
+    return f"{d}·{edges} edges − {d}·{free} free poses = {chi2['dof']}"
 
 
 def _stats_table(chi2: dict) -> list[str]:

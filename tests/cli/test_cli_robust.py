@@ -33,6 +33,8 @@ def test_gnc_reports_and_drops_exactly_the_outliers(corrupted, tmp_path):
     assert json.loads(report.read_text())["outlier_edges"] == indices.tolist()
     loops = int(np.count_nonzero(~read_g2o(path).odometry_mask()))
     assert f"outliers:       {len(indices)} of {loops} loop closures" in run.stdout
+    kept = read_g2o(path).num_edges - len(indices)
+    assert f"dof = 6·{kept} edges" in run.stdout  # χ² over the inliers
     gnc_lines = [line for line in run.stderr_lines if line.strip().startswith(("gnc ", "tls "))]
     assert gnc_lines and all("mu " in line and "inliers " in line and "cost " in line for line in gnc_lines)
     source, written = read_g2o(path), read_g2o(out)
