@@ -165,7 +165,7 @@ def tls_alternation(solves: ActiveEdgeSolves, poses, inliers, judged, history: l
     return weights, result
 
 
-def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: ActiveEdgeSolves, progress, weights=None) -> GncResult:
+def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: ActiveEdgeSolves, progress) -> GncResult:
     """GNC whose weighted solve is LM from the last solution (gtsam's ``GncLMOptimizer``, warm-started)."""
     from posegraph.robust.starts import squared_residuals
     from posegraph.solve.optimizer import _initial_poses
@@ -178,5 +178,4 @@ def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: Activ
         gnc,
         dimension=graph.group.dim,
         progress=progress,
-        initial_weights=weights,
     )
