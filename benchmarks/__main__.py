@@ -1,8 +1,8 @@
 """``python -m benchmarks``: posegraph and gtsam side by side on the same graphs (whole processes).
 
-Default datasets: every 3D ``.g2o`` in ``../shared/datasets``, gtsam's bundled ``sphere2500.txt``
+Default datasets: every 3D or 2D ``.g2o`` in ``../shared/datasets``, gtsam's bundled ``sphere2500.txt``
 and ``pose3example.txt``, and the synthetic sets of :data:`benchmarks.harness.SYNTHETIC_SETS`.
-``--datasets`` replaces them with the given files and folders (every 3D ``.g2o``/``.txt`` in a folder).
+``--datasets`` replaces them with the given files and folders (every 3D or 2D ``.g2o``/``.txt`` in a folder).
 Writes ``benchmark_results.json`` and ``benchmark_results.md`` into ``--out`` and prints the summary.
 """
 

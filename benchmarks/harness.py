@@ -5,8 +5,8 @@ initialise, optimise, write — because that is what a user waits for:
 
 * ours: ``posegraph optimize IN -o OUT --quiet --report REPORT.json --repair-information``
 * gtsam: ``benchmarks/gtsam_pipeline.py IN -o OUT --report REPORT.json --method lm|gn``
-  (``readG2o``, ``InitializePose3.initialize``, ``LevenbergMarquardtOptimizer`` /
-  ``GaussNewtonOptimizer``, ``writeG2o``).
+  (``readG2o``, ``InitializePose3.initialize`` — ``lago.initialize`` for a 2D graph —,
+  ``LevenbergMarquardtOptimizer`` / ``GaussNewtonOptimizer``, ``writeG2o``).
 
 The harness measures the wall time around each process (fork to reaping) and its peak resident
 memory (``ru_maxrss`` of that child from ``os.wait4``); each process writes a JSON report with its
@@ -43,7 +43,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 """The project root (``cli.py`` lives there)."""
 SHARED_DATASETS = ROOT.parent / "shared" / "datasets"
-"""``../shared/datasets``: the standard 3D benchmarks (SE-Sync's data folder)."""
+"""``../shared/datasets``: the standard 3D and 2D benchmarks (SE-Sync's data folder)."""
 GTSAM_PIPELINE = Path(__file__).resolve().parent / "gtsam_pipeline.py"
 
 PHASES = ("read", "initialize", "optimize", "write")
@@ -53,7 +53,7 @@ TOOLS = ("posegraph", "gtsam-lm", "gtsam-gn")
 REFERENCE_TOOL = "gtsam-lm"
 """The end-to-end ratio target is against gtsam's Levenberg-Marquardt, like for like with our default."""
 
-TARGET_DATASETS = ("sphere2500", "torus3D", "parking-garage")
+TARGET_DATASETS = ("sphere2500", "torus3D", "parking-garage", "intel", "manhattan")
 TARGET_RATIO = 0.5
 """End-to-end wall time of ours at most this times gtsam's on :data:`TARGET_DATASETS`."""
 COST_TOLERANCE = 1e-6
@@ -286,15 +286,25 @@ def run_tool(tool: str, source: Path, workdir: Path, timeout: float | None) -> T
 
 def is_3d_g2o(path: Path) -> bool:
     """True when the file's first tagged line is a 3D pose (``VERTEX_SE3…``, ``EDGE_SE3…``, ``EDGE3``)."""
+    return _first_tag(path).startswith(("VERTEX_SE3", "EDGE_SE3", "EDGE3", "VERTEX3"))
+
+
+def is_pose_graph_g2o(path: Path) -> bool:
+    """True when the file's first tagged line is a 3D pose or a 2D one (``VERTEX_SE2``, ``EDGE_SE2``)."""
+    return is_3d_g2o(path) or _first_tag(path) in ("VERTEX_SE2", "EDGE_SE2")
+
+
+def _first_tag(path: Path) -> str:
+    """The tag of the file's first line that is neither blank nor a comment ("" if none, or unreadable)."""
     try:
         with open(path, errors="replace") as stream:
             for line in stream:
                 tag = line.split(maxsplit=1)[0] if line.strip() else ""
                 if tag and not tag.startswith("#"):
-                    return tag.startswith(("VERTEX_SE3", "EDGE_SE3", "EDGE3", "VERTEX3"))
+                    return tag
     except OSError:
-        return False
-    return False
+        return ""
+    return ""
 
 
 def count_graph(path: Path) -> tuple[int, int]:
@@ -323,10 +333,10 @@ class Dataset:
 
 
 def shared_datasets(folder: Path = SHARED_DATASETS) -> list[Dataset]:
-    """Every 3D ``.g2o`` in ``folder`` (sorted by name); empty when the folder is absent."""
+    """Every 3D or 2D ``.g2o`` in ``folder`` (sorted by name); empty when the folder is absent."""
     if not folder.is_dir():
         return []
-    return [Dataset(p.stem, p, "shared") for p in sorted(folder.glob("*.g2o")) if is_3d_g2o(p)]
+    return [Dataset(p.stem, p, "shared") for p in sorted(folder.glob("*.g2o")) if is_pose_graph_g2o(p)]
 
 
 def gtsam_datasets() -> list[Dataset]:
@@ -369,11 +379,14 @@ def synthetic_datasets(folder: Path, sets=SYNTHETIC_SETS, seed: int = 0) -> list
 
 
 def user_datasets(paths: list[str]) -> list[Dataset]:
-    """Files as given, and every 3D ``.g2o``/``.txt`` in given folders."""
+    """Files as given, and every 3D or 2D ``.g2o``/``.txt`` in given folders."""
     found = []
     for entry in map(Path, paths):
         if entry.is_dir():
-            found += [Dataset(p.stem, p, "user") for p in sorted(entry.iterdir()) if p.suffix in (".g2o", ".txt") and is_3d_g2o(p)]
+            found += [
+                Dataset(p.stem, p, "user") for p in sorted(entry.iterdir())
+                if p.suffix in (".g2o", ".txt") and is_pose_graph_g2o(p)
+            ]  # fmt: skip
         elif entry.is_file():
             found.append(Dataset(entry.stem, entry, "user"))
         else:

@@ -18,11 +18,12 @@ the vertex level (one scalar per pose, an SPD matrix with the graph's adjacency)
 AMD, METIS and nested-dissection orderings (``used``: the one the solver's ``"auto"`` picks, AMD
 below 10,000 poses, nested dissection above) and reports ``nnz(L)`` and the factorisation flops ``Σ_j c_j²`` of the
 column counts ``c_j``. Each 6×6 block of the real system multiplies them by 36 (nnz) and 216
-(flops). That is what grows faster than linearly: roughly ``n log n`` for a sphere or a
+(flops); each 3×3 block of a 2D graph by 9 and 27. That is what grows faster than linearly: roughly ``n log n`` for a sphere or a
 few-layer slab (planar-like graphs, separators ~ √n) and ``n^{4/3}`` nnz / ``n²`` flops for a
 full 3D lattice (separators ~ n^{2/3}).
 
-Shapes: ``sphere`` (rings × nodes, as g2o's create_sphere), ``slab`` (a 3D grid 4 layers high:
+Shapes: ``manhattan`` (2D, SE(2): a walk on a street lattice like M3500, up to 10⁶ poses),
+``sphere`` (rings × nodes, as g2o's create_sphere), ``slab`` (a 3D grid 4 layers high:
 a multi-storey building) and ``cube`` (a full 3D grid, the worst case for fill-in: at 200,000 poses
 its factor alone would need ~30 GB, so it stops at 27,000 by default). An 8-layer slab of 200,000
 poses already needs ~13 GB for the factor and ~10¹³ flops per factorisation (AMD).
@@ -46,6 +47,7 @@ DEFAULT_SIZES = {
     "sphere": (1000, 2000, 5000, 10000, 20000, 50000, 100000, 200000),
     "slab": (1000, 2000, 5000, 10000, 20000, 50000, 100000, 200000),
     "cube": (1000, 3375, 8000, 15625, 27000),
+    "manhattan": (1000, 3000, 10000, 30000, 100000, 300000, 1000000),
 }
 MACHINE_MEMORY_GB = 24
 
@@ -135,6 +137,8 @@ def make_dataset(shape: str, size: int, seed: int = 0):
     if shape == "slab":
         side = max(2, round((size / SLAB_LAYERS) ** 0.5))
         return generate("grid", None, seed=seed, nx=side, ny=side, nz=SLAB_LAYERS)
+    if shape == "manhattan":
+        return generate("manhattan", size, seed=seed)
     raise ValueError(f"unknown scaling shape {shape!r}")
 
 
@@ -142,7 +146,8 @@ def fill_in(graph) -> dict:
     """Vertex-level CHOLMOD factorisation of the graph's normal-equation sparsity under AMD, METIS and nested dissection.
 
     Returns per ordering ``nnz_L`` (vertex level), ``flops`` (``Σ c_j²``), and the scalar
-    estimates ``nnz_L_scalar`` = 36·``nnz_L`` and ``flops_scalar`` = 216·``flops``; plus
+    estimates ``nnz_L_scalar`` = d²·``nnz_L`` and ``flops_scalar`` = d³·``flops`` (d = 6 for SE(3),
+    3 for SE(2): the block size); plus
     ``nnz_H`` (lower triangle, vertex level) of the matrix itself. ``"metis"`` and ``"nesdis"``
     are both METIS nested dissection (pymetis) in :mod:`posegraph.cholmod`.
     """
@@ -158,6 +163,7 @@ def fill_in(graph) -> dict:
     degree = np.bincount(i, minlength=n) + np.bincount(j, minlength=n)
     values = np.where(rows == cols, degree[cols] + 1.0, -0.1)
     out = {"nnz_H": int(keys.size), "used": cholmod.auto_ordering(n)}
+    d = graph.group.dim
     for ordering in ("amd", "metis", "nesdis"):
         factor = cholmod.SparseCholesky(indptr, rows, n, ordering)
         factor.factorize(values)
@@ -165,8 +171,8 @@ def fill_in(graph) -> dict:
         out[ordering] = {
             "nnz_L": int(counts.sum()),
             "flops": float(np.sum(counts**2)),
-            "nnz_L_scalar": int(36 * counts.sum()),
-            "flops_scalar": float(216 * np.sum(counts**2)),
+            "nnz_L_scalar": int(d * d * counts.sum()),
+            "flops_scalar": float(d**3 * np.sum(counts**2)),
         }
     return out
 

@@ -1,6 +1,7 @@
-"""Synthetic 3D pose graphs with ground truth: sphere, torus, 3D grid, parking garage.
+"""Synthetic pose graphs with ground truth: sphere, torus, 3D grid, parking garage (3D); a Manhattan world (2D).
 
-Every generator builds ground-truth poses ``X_k`` (world-from-body, ``(n, 4, 4)``), the odometry
+Every generator builds ground-truth poses ``X_k`` (world-from-body, ``(n, 4, 4)``; ``(n, 3, 3)``
+SE(2) matrices for the planar ``manhattan``, whose noise is in ``[v_x, v_y, ω]`` order), the odometry
 chain ``k → k+1`` and a set of candidate loop closures, then makes the measurements the way the
 cost assumes they were made::
 
@@ -51,7 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from posegraph.graph import PoseGraph
-from posegraph.lie import se3, so3
+from posegraph.lie import se2, se3, so2, so3
+from posegraph.lie.group import SE2, SE3, LieGroup
 
 __all__ = [
     "NoiseParams",
@@ -60,6 +62,7 @@ __all__ = [
     "torus",
     "grid",
     "garage",
+    "manhattan",
     "generate",
     "shape_arguments",
     "SHAPES",
@@ -127,7 +130,7 @@ class SyntheticDataset:
     graph: PoseGraph
     """The noisy graph; its poses are the composed noisy odometry (vertex 0 at the ground truth)."""
     ground_truth: np.ndarray
-    """``(n, 4, 4)`` true poses."""
+    """``(n, 4, 4)`` true poses (``(n, 3, 3)`` for a planar shape)."""
     outliers: np.ndarray
     """``(m,)`` bool — True for the outlier loop closures."""
     odometry: np.ndarray
@@ -181,7 +184,8 @@ def _frames_from_axes(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 
 def _compose_chain(first: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Poses ``X_0 = first``, ``X_{k+1} = X_k · Z_k`` for steps ``(n-1, 4, 4)``; returns ``(n, 4, 4)``.
+    """Poses ``X_0 = first``, ``X_{k+1} = X_k · Z_k`` for steps ``(n-1, k, k)``; returns ``(n, k, k)``
+    (any matrix group: the products are plain matrix products).
 
     An inclusive prefix product by recursive doubling (Hillis & Steele): after the pass with
     shift ``s`` entry ``k`` holds ``Z_{k-2s+1} ⋯ Z_k``; the earlier factor always stays on the
@@ -190,15 +194,23 @@ def _compose_chain(first: np.ndarray, steps: np.ndarray) -> np.ndarray:
     prefix = np.array(steps, dtype=np.float64, copy=True)
     shift = 1
     while shift < len(prefix):
-        prefix[shift:] = se3.compose(prefix[:-shift], prefix[shift:])
+        prefix[shift:] = prefix[:-shift] @ prefix[shift:]
         shift *= 2
-    return np.concatenate([first[None], se3.compose(first[None], prefix)], axis=0)
+    return np.concatenate([first[None], first[None] @ prefix], axis=0)
 
 
-def _information(rotation_sigma: float, translation_sigma: float) -> np.ndarray:
-    """``diag(σ_rot⁻² I₃, σ_trans⁻² I₃)`` rounded to 12 significant digits, so that files read
-    ``400`` rather than ``399.99999999999994`` for σ = 0.05 (a 1e-16 relative change)."""
-    diagonal = np.array([rotation_sigma**-2] * 3 + [translation_sigma**-2] * 3)
+def _sigmas(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3) -> np.ndarray:
+    """``(d,)`` standard deviations in the group's tangent order: ``σ_rot`` at its rotation axes."""
+    sigmas = np.full(group.dim, float(translation_sigma))
+    sigmas[list(group.rotation_axes)] = rotation_sigma
+    return sigmas
+
+
+def _information(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3) -> np.ndarray:
+    """``diag(σ⁻²)`` of :func:`_sigmas` (``diag(σ_rot⁻² I₃, σ_trans⁻² I₃)`` in 3D) rounded to 12
+    significant digits, so that files read ``400`` rather than ``399.99999999999994`` for σ = 0.05
+    (a 1e-16 relative change)."""
+    diagonal = _sigmas(rotation_sigma, translation_sigma, group) ** -2
     return np.diag([float(f"{value:.12g}") for value in diagonal])
 
 
@@ -209,8 +221,9 @@ def _build(
     noise: NoiseParams,
     rng: np.random.Generator,
     parameters: dict,
+    group: LieGroup = SE3,
 ) -> SyntheticDataset:
-    """Noisy graph from ground truth ``(n, 4, 4)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer)."""
+    """Noisy graph of ``group`` from ground truth ``(n, k, k)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer)."""
     n = len(truth)
     if n < 2:
         raise ValueError(f"{name}: a pose graph needs at least 2 poses, got {n}")
@@ -226,22 +239,7 @@ def _build(
     # 2. Outliers: outliers / (inliers + outliers) = outlier_fraction.
     f = noise.outlier_fraction
     num_outliers = int(round(f / (1.0 - f) * len(loops))) if f > 0 else 0
-    if num_outliers and n < 3:
-        raise ValueError(f"{name}: outliers need at least 3 poses")
-    # Random pairs, never a self-loop, an odometry pair, a true loop-closure candidate (its
-    # measurement could be nearly right) or a pair drawn twice.
-    true_codes = np.sort(loop_candidates, axis=1) @ np.array([n, 1]) if len(loop_candidates) else np.zeros(0, np.int64)
-    outlier_pairs = np.zeros((0, 2), np.int64)
-    possible = n * (n - 1) // 2 - (n - 1) - len(np.unique(true_codes))
-    if num_outliers > possible:
-        raise ValueError(f"{name}: {num_outliers} outliers asked but only {possible} vertex pairs are free")
-    while len(outlier_pairs) < num_outliers:
-        draw = np.sort(rng.integers(0, n, size=(2 * num_outliers + 8, 2)), axis=1)
-        draw = draw[draw[:, 1] - draw[:, 0] > 1]
-        draw = draw[~np.isin(draw @ np.array([n, 1]), true_codes)]
-        merged = np.concatenate([outlier_pairs, draw])
-        _, first = np.unique(merged @ np.array([n, 1]), return_index=True)
-        outlier_pairs = merged[np.sort(first)][:num_outliers]
+    outlier_pairs = _outlier_pairs(name, n, num_outliers, loop_candidates, rng)
 
     odometry_pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     pairs = np.concatenate([odometry_pairs, loops, outlier_pairs])
@@ -253,30 +251,27 @@ def _build(
 
     # 3. Exact measurements; an outlier borrows a random true loop closure's relative pose
     #    (or a random relative pose when the shape has no loop closures to borrow from).
-    exact = se3.between(truth[pairs[:, 0]], truth[pairs[:, 1]])
+    exact = group.between(truth[pairs[:, 0]], truth[pairs[:, 1]])
     if num_outliers:
         if len(loop_candidates):
             donors = loop_candidates[rng.integers(0, len(loop_candidates), size=num_outliers)]
-            exact[is_outlier] = se3.between(truth[donors[:, 0]], truth[donors[:, 1]])
+            exact[is_outlier] = group.between(truth[donors[:, 0]], truth[donors[:, 1]])
         else:
-            exact[is_outlier] = se3.from_rotation_translation(
-                _random_rotations(rng, num_outliers), rng.uniform(-1.0, 1.0, size=(num_outliers, 3))
-            )
+            exact[is_outlier] = _random_poses(rng, num_outliers, 1.0, group)
 
-    # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in [ω; v] order.
-    sigmas = np.empty((m, 6))
-    sigmas[is_odometry, :3] = noise.odometry_rotation_sigma
-    sigmas[is_odometry, 3:] = noise.odometry_translation_sigma
-    sigmas[~is_odometry, :3] = noise.loop_rotation_sigma
-    sigmas[~is_odometry, 3:] = noise.loop_translation_sigma
-    delta = rng.standard_normal((m, 6)) * sigmas
+    # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in the tangent order.
+    d = group.dim
+    odometry_sigmas = _sigmas(noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group)
+    loop_sigmas = _sigmas(noise.loop_rotation_sigma, noise.loop_translation_sigma, group)
+    sigmas = np.where(is_odometry[:, None], odometry_sigmas, loop_sigmas)
+    delta = rng.standard_normal((m, d)) * sigmas
     if noise.noiseless:
         delta[:] = 0.0
-    measurements = se3.compose(exact, se3.exp(delta))
+    measurements = exact @ group.exp(delta)
 
-    information = np.empty((m, 6, 6))
-    information[is_odometry] = _information(noise.odometry_rotation_sigma, noise.odometry_translation_sigma)
-    information[~is_odometry] = _information(noise.loop_rotation_sigma, noise.loop_translation_sigma)
+    information = np.empty((m, d, d))
+    information[is_odometry] = _information(noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group)
+    information[~is_odometry] = _information(noise.loop_rotation_sigma, noise.loop_translation_sigma, group)
 
     # 5. Initial values: noisy odometry composed from the true first pose.
     initial = _compose_chain(truth[0], measurements[: n - 1])
@@ -290,6 +285,7 @@ def _build(
         edge_to=pairs[order, 1].copy(),
         measurements=measurements[order],
         information=information[order],
+        group=group,
     )
     return SyntheticDataset(
         name=name,
@@ -299,6 +295,26 @@ def _build(
         odometry=is_odometry[order],
         parameters=parameters,
     )
+
+
+def _outlier_pairs(name: str, n: int, num_outliers: int, loop_candidates: np.ndarray, rng) -> np.ndarray:
+    """``(num_outliers, 2)`` random pairs (older, newer): never a self-loop, an odometry pair, a true
+    loop-closure candidate (its measurement could be nearly right) or a pair drawn twice."""
+    if num_outliers and n < 3:
+        raise ValueError(f"{name}: outliers need at least 3 poses")
+    true_codes = np.sort(loop_candidates, axis=1) @ np.array([n, 1]) if len(loop_candidates) else np.zeros(0, np.int64)
+    outlier_pairs = np.zeros((0, 2), np.int64)
+    possible = n * (n - 1) // 2 - (n - 1) - len(np.unique(true_codes))
+    if num_outliers > possible:
+        raise ValueError(f"{name}: {num_outliers} outliers asked but only {possible} vertex pairs are free")
+    while len(outlier_pairs) < num_outliers:
+        draw = np.sort(rng.integers(0, n, size=(2 * num_outliers + 8, 2)), axis=1)
+        draw = draw[draw[:, 1] - draw[:, 0] > 1]
+        draw = draw[~np.isin(draw @ np.array([n, 1]), true_codes)]
+        merged = np.concatenate([outlier_pairs, draw])
+        _, first = np.unique(merged @ np.array([n, 1]), return_index=True)
+        outlier_pairs = merged[np.sort(first)][:num_outliers]
+    return outlier_pairs
 
 
 def _ring_neighbours(older_start: np.ndarray, newer_start: np.ndarray, ring: int, offsets=(-1, 0, 1)) -> np.ndarray:
@@ -552,7 +568,46 @@ def garage(
     return _build(f"garage_{F}x{laps}x{N}", truth, candidates, noise, rng, params)
 
 
-SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage}
+def manhattan(
+    steps: int = 3500,
+    side: int | None = None,
+    turn_probability: float = 0.3,
+    noise: NoiseParams = NoiseParams(),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A planar (SE(2)) robot walking the streets of a ``side × side`` lattice, like M3500 (Olson 2006).
+
+    Each step moves one unit forward; before it the robot turns ±90° with probability
+    ``turn_probability`` (either way alike). The walk is drawn without bounds, as cumulative sums,
+    and folded into ``[0, side − 1]²`` by reflection (a triangle wave per axis): where it bounces off
+    a wall the robot's heading stays as drawn, so that step is sideways or backwards, which the
+    odometry measures like any other relative pose. Loop closures: each visit of a lattice cell with
+    the cell's previous visit (non-consecutive poses), as a front end recognising the place would
+    emit them. ``side`` defaults to ``√(steps/2)``: about two visits per cell, ~0.6 loop closures per
+    pose (M3500 has 0.56). Every step is vectorised, so a million poses take about a second.
+    """
+    n = _check_count("steps", steps, 2)
+    side = _check_count("side", side if side is not None else max(3, round((n / 2) ** 0.5)), 2)
+    rng = np.random.default_rng(seed)
+    turns = np.where(rng.random(n) < turn_probability, rng.choice([-1, 1], size=n), 0)
+    turns[0] = 0
+    heading = np.cumsum(turns) % 4  # in quarter turns
+    step = np.stack([np.cos(heading * np.pi / 2), np.sin(heading * np.pi / 2)], axis=1).round()
+    step[0] = 0.0
+    unfolded = np.cumsum(step, axis=0).astype(np.int64)
+    period = 2 * (side - 1)
+    folded = (side - 1) - np.abs(unfolded % period - (side - 1))  # triangle wave into [0, side − 1]
+    angles = np.where(heading > 2, heading - 4, heading) * (np.pi / 2)  # in (−π, π]
+    truth = se2.from_rotation_translation(so2.from_angle(angles), folded.astype(np.float64))
+    cell = folded[:, 0] * side + folded[:, 1]
+    order = np.lexsort((np.arange(n), cell))  # by cell, then time
+    same = cell[order][1:] == cell[order][:-1]
+    candidates = np.stack([order[:-1][same], order[1:][same]], axis=1)
+    params = dict(shape="manhattan", steps=n, side=side, turn_probability=turn_probability, noise=noise, seed=seed)
+    return _build(f"manhattan_{n}", truth, candidates, noise, rng, params, group=SE2)
+
+
+SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage, "manhattan": manhattan}
 
 
 def shape_arguments(shape: str, size: int) -> dict:
@@ -567,6 +622,8 @@ def shape_arguments(shape: str, size: int) -> dict:
     if shape == "grid":
         side = max(2, round(size ** (1 / 3)))
         return dict(nx=side, ny=side, nz=max(1, round(size / side**2)))
+    if shape == "manhattan":
+        return dict(steps=size)
     if shape == "garage":
         floors, laps, ramp = 4, 2, 12
         return dict(floors=floors, laps_per_floor=laps, ramp_nodes=ramp, nodes_per_lap=max(4, round((size - (floors - 1) * ramp) / (floors * laps))))
@@ -591,6 +648,16 @@ def random_relative_poses(rng: np.random.Generator, count: int, translation_rang
     """``(count, 4, 4)`` poses: rotation uniform on SO(3), translation uniform in ``[−r, r]³``."""
     translation = rng.uniform(-translation_range, translation_range, size=(count, 3))
     return se3.from_rotation_translation(_random_rotations(rng, count), translation)
+
+
+def _random_poses(rng: np.random.Generator, count: int, translation_range: float, group: LieGroup) -> np.ndarray:
+    """``(count, k, k)`` poses of ``group``: rotation uniform (on SO(3), or an angle in [−π, π)),
+    then translation uniform in ``[−r, r]`` per axis (drawn in that order)."""
+    if group.matrix_size == 3:
+        rotations = so2.from_angle(rng.uniform(-np.pi, np.pi, count))
+        return se2.from_rotation_translation(rotations, rng.uniform(-translation_range, translation_range, (count, 2)))
+    rotations = _random_rotations(rng, count)
+    return se3.from_rotation_translation(rotations, rng.uniform(-translation_range, translation_range, (count, 3)))
 
 
 def _free_pairs(rng: np.random.Generator, graph: PoseGraph, count: int) -> np.ndarray:
@@ -775,7 +842,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Write a synthetic 3D pose graph (g2o) and its ground truth (NAME_groundtruth.g2o); "
         "with outliers, also NAME.outliers.txt. 'python -m datasets.synthetic inject -h': add outliers to a g2o file.",
     )
-    parser.add_argument("shape", choices=sorted(SHAPES), help="sphere (as g2o's create_sphere), torus, grid (3D lattice), garage (multi-floor laps)")
+    parser.add_argument("shape", choices=sorted(SHAPES), help="sphere (as g2o's create_sphere), torus, grid (3D lattice), garage (multi-floor laps), "
+                        "manhattan (2D: a walk on a street lattice, like M3500)")
     parser.add_argument("--size", type=int, default=None, help="about this many poses (default: the shape's defaults, e.g. sphere 50×50)")
     parser.add_argument("-o", "--output", required=True, help="output g2o file; the ground truth goes next to it")
     parser.add_argument("--groundtruth", default=None, help="ground-truth file (default: OUTPUT with _groundtruth before the suffix)")

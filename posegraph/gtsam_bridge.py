@@ -3,7 +3,8 @@
 gtsam (``pip install "posegraph[gtsam]"``) is optional and imported only inside these functions.
 It is the reference this project is checked against: the same factors (``BetweenFactorPose3``
 with a full Gaussian noise model from Ω, as ``gtsam.readG2o`` builds them), the same cost
-``½ Σ eᵀ Ω e`` (``NonlinearFactorGraph.error``), the same ``[ω; v]`` tangent order.
+``½ Σ eᵀ Ω e`` (``NonlinearFactorGraph.error``), the same ``[ω; v]`` tangent order; for 2D graphs
+``Pose2``, ``BetweenFactorPose2`` and ``PriorFactorPose2`` (tangent ``[x, y, θ]``).
 
 Gauge. Our solver holds every ``FIX`` vertex and one anchor per free connected component constant
 and adds nothing to the cost (``posegraph.graph.component_anchors``). gtsam needs the gauge fixed
@@ -50,25 +51,48 @@ def require_gtsam():
     return gtsam
 
 
-def poses_to_values(ids: np.ndarray, poses: np.ndarray):
-    """``gtsam.Values`` holding ``Pose3(poses[k])`` under key ``ids[k]``.
+def _is_planar(poses_or_graph) -> bool:
+    """Whether poses ``(…, 3, 3)`` (or a graph's group) are SE(2), gtsam's ``Pose2``."""
+    group = getattr(poses_or_graph, "group", None)
+    if group is not None:
+        return group.matrix_size == 3
+    return np.shape(poses_or_graph)[-1] == 3
 
-    ``ids`` ``(n,)`` integer vertex ids (used as gtsam keys, as ``readG2o`` does); ``poses`` ``(n, 4, 4)``.
+
+def _gtsam_pose(gtsam, matrix: np.ndarray):
+    """``Pose3(T)`` of a ``(4, 4)`` matrix, ``Pose2(x, y, θ)`` of a ``(3, 3)`` one."""
+    if matrix.shape[-1] == 3:
+        from posegraph.lie import se2
+
+        return gtsam.Pose2(*se2.to_xytheta(matrix).tolist())
+    return gtsam.Pose3(matrix)
+
+
+def poses_to_values(ids: np.ndarray, poses: np.ndarray):
+    """``gtsam.Values`` holding ``Pose3(poses[k])`` (``Pose2`` for SE(2) poses) under key ``ids[k]``.
+
+    ``ids`` ``(n,)`` integer vertex ids (used as gtsam keys, as ``readG2o`` does); ``poses`` ``(n, 4, 4)``
+    or ``(n, 3, 3)``.
     """
     gtsam = require_gtsam()
     values = gtsam.Values()
     for key, pose in zip(np.asarray(ids).tolist(), np.asarray(poses, dtype=np.float64)):
-        values.insert(key, gtsam.Pose3(pose))
+        values.insert(key, _gtsam_pose(gtsam, pose))
     return values
 
 
 def values_to_poses(values, ids: np.ndarray) -> np.ndarray:
-    """Poses ``(n, 4, 4)`` of ``ids`` read from ``gtsam.Values`` (KeyError if a key is absent)."""
+    """Poses ``(n, 4, 4)`` — ``(n, 3, 3)`` when ``values`` holds ``Pose2`` — of ``ids`` read from
+    ``gtsam.Values`` (KeyError if a key is absent)."""
     gtsam = require_gtsam()
     ids = np.asarray(ids, dtype=np.int64)
     keys = np.asarray(list(values.keys()), dtype=np.int64)
-    # extractPose3 returns one row per Pose3 in key order: R row-major (9), then t (3).
+    # extractPose3 returns one row per Pose3 in key order: R row-major (9), then t (3); extractPose2
+    # one row per Pose2: x, y, θ.
     rows = gtsam.utilities.extractPose3(values)
+    planar = rows.shape[0] == 0 and keys.size > 0
+    if planar:
+        rows = gtsam.utilities.extractPose2(values)
     order = np.argsort(keys)
     pos = np.searchsorted(keys, ids, sorter=order)
     pos = np.clip(pos, 0, len(keys) - 1)
@@ -76,6 +100,10 @@ def values_to_poses(values, ids: np.ndarray) -> np.ndarray:
     if not np.all(keys[found] == ids):
         raise KeyError(f"vertex ids not in gtsam values: {ids[keys[found] != ids][:5].tolist()}")
     rows = rows[found]
+    if planar:
+        from posegraph.lie import se2
+
+        return se2.from_xytheta(rows)
     poses = np.zeros((len(ids), 4, 4))
     poses[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
     poses[:, :3, 3] = rows[:, 9:12]
@@ -83,33 +111,42 @@ def values_to_poses(values, ids: np.ndarray) -> np.ndarray:
     return poses
 
 
-def graph_to_gtsam(graph):
-    """``gtsam.NonlinearFactorGraph`` of ``BetweenFactorPose3``, one per edge, keys = vertex ids.
+def graph_to_gtsam(graph, *, diagonal: bool = False):
+    """``gtsam.NonlinearFactorGraph`` of ``BetweenFactorPose3`` (``BetweenFactorPose2`` for an SE(2)
+    graph), one per edge, keys = vertex ids.
 
     Each factor measures ``Pose3(Z_ij)`` with ``noiseModel.Gaussian.Information(Ω)`` (Ω is in
-    ``[ω; v]`` order, gtsam's tangent order), so ``factor_graph.error(values)`` equals our
-    ``cost(graph, poses)``. No prior is added (see :func:`gauge_priors`).
+    ``[ω; v]`` order, gtsam's tangent order; ``[x, y, θ]``, ``Pose2``'s, in 2D), so
+    ``factor_graph.error(values)`` equals our ``cost(graph, poses)``. No prior is added (see
+    :func:`gauge_priors`). ``diagonal=True`` gives each edge instead a diagonal noise model with its
+    marginal sigmas ``√diag(Ω⁻¹)``, as gtsam's LAGO requires (it refuses other noise models).
     """
     gtsam = require_gtsam()
+    between = gtsam.BetweenFactorPose2 if _is_planar(graph) else gtsam.BetweenFactorPose3
     factors = gtsam.NonlinearFactorGraph()
     ids = graph.ids.tolist()
-    for i, j, Z, info in zip(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements, graph.information):
-        noise = gtsam.noiseModel.Gaussian.Information(info)
-        factors.add(gtsam.BetweenFactorPose3(ids[i], ids[j], gtsam.Pose3(Z), noise))
+    if diagonal:
+        sigmas = np.sqrt(np.diagonal(np.linalg.inv(graph.information), axis1=1, axis2=2))
+        noises = [gtsam.noiseModel.Diagonal.Sigmas(sigma) for sigma in sigmas]
+    else:
+        noises = [gtsam.noiseModel.Gaussian.Information(info) for info in graph.information]
+    for i, j, Z, noise in zip(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements, noises):
+        factors.add(between(ids[i], ids[j], _gtsam_pose(gtsam, Z), noise))
     return factors
 
 
 def gauge_priors(graph, poses: np.ndarray | None = None):
-    """Tight ``PriorFactorPose3`` on every ``FIX`` vertex and every component anchor, at ``poses``."""
+    """Tight ``PriorFactorPose3`` (``PriorFactorPose2``) on every ``FIX`` vertex and every component anchor, at ``poses``."""
     gtsam = require_gtsam()
     from posegraph.graph import component_anchors
 
     X = graph.poses if poses is None else poses
     held = np.union1d(np.flatnonzero(graph.fixed), component_anchors(graph))
-    noise = gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_SIGMA)
+    noise = gtsam.noiseModel.Isotropic.Sigma(graph.group.dim, ANCHOR_SIGMA)
+    prior = gtsam.PriorFactorPose2 if _is_planar(graph) else gtsam.PriorFactorPose3
     priors = gtsam.NonlinearFactorGraph()
     for k in held.tolist():
-        priors.add(gtsam.PriorFactorPose3(int(graph.ids[k]), gtsam.Pose3(X[k]), noise))
+        priors.add(prior(int(graph.ids[k]), _gtsam_pose(gtsam, X[k]), noise))
     return priors
 
 
@@ -136,9 +173,9 @@ class GtsamResult:
     """Outcome of :func:`run_gtsam`; costs are of the edges alone (no gauge priors)."""
 
     poses: np.ndarray
-    """``(n, 4, 4)`` optimised poses in the graph's vertex order."""
+    """``(n, k, k)`` optimised poses in the graph's vertex order."""
     initial_poses: np.ndarray
-    """``(n, 4, 4)`` the poses the optimiser started from."""
+    """``(n, k, k)`` the poses the optimiser started from."""
     initial_cost: float
     final_cost: float
     iterations: int
@@ -154,7 +191,7 @@ class GtsamResult:
     seconds_read: float = 0.0
     """``gtsam.readG2o`` of the file, or building the factor graph from our arrays."""
     seconds_initialise: float = 0.0
-    """``InitializePose3.initialize`` (chordal) or copying the start poses into ``Values``."""
+    """``InitializePose3.initialize`` (3D chordal), ``lago.initialize`` (2D) or copying the start poses into ``Values``."""
     seconds_optimise: float = 0.0
     seconds_write: float = 0.0
     """``gtsam.writeG2o`` when an output path was given."""
@@ -179,15 +216,18 @@ def run_gtsam(
 ) -> GtsamResult:
     """Optimise a pose graph with gtsam's LM or GN, timing each phase.
 
-    ``source``: a g2o path (read with ``gtsam.readG2o(path, is3D=True)``) or a
-    :class:`~posegraph.graph.PoseGraph` (converted with :func:`graph_to_gtsam`). ``graph``: our
-    model of the same file, used for vertex order, ``FIX`` flags and anchors (read with
-    ``posegraph.io.g2o.read_g2o`` when not given and ``source`` is a path).
+    ``source``: a g2o path (read with ``gtsam.readG2o(path, is3D)``, ``is3D`` False for a 2D file) or
+    a :class:`~posegraph.graph.PoseGraph` (converted with :func:`graph_to_gtsam`). ``graph``: our
+    model of the same file, used for vertex order, ``FIX`` flags, anchors and the dimension (read
+    with ``posegraph.io.g2o.read_g2o`` when not given and ``source`` is a path).
 
-    ``init``: ``"file"`` (the file's poses), ``"chordal"`` (gtsam's ``InitializePose3.initialize``:
-    chordal relaxation for rotations, then one Gauss-Newton step on full poses) or ``"given"``
-    (``initial`` ``(n, 4, 4)``, e.g. our own initialiser's output, so both optimisers share one start).
-    The tolerances are gtsam's ``relativeErrorTol`` / ``absoluteErrorTol``.
+    ``init``: ``"file"`` (the file's poses), ``"chordal"`` (gtsam's own initialiser: in 3D
+    ``InitializePose3.initialize``, chordal relaxation for rotations then one Gauss-Newton step on
+    full poses; in 2D ``lago.initialize``, on a copy of the graph with diagonal noise of the same
+    marginal sigmas since LAGO refuses full noise models) or ``"given"`` (``initial`` ``(n, k, k)``,
+    e.g. our own initialiser's output, so both optimisers share one start). The tolerances are
+    gtsam's ``relativeErrorTol`` / ``absoluteErrorTol``; ``Pose2`` factors (BetweenFactorPose2,
+    PriorFactorPose2) for a 2D graph.
     """
     gtsam = require_gtsam()
     if method not in ("lm", "gn"):
@@ -196,47 +236,82 @@ def run_gtsam(
         init = "given"
     if init not in ("file", "chordal", "given"):
         raise ValueError(f"init must be 'file', 'chordal' or 'given', got {init!r}")
-
+    graph, factors, file_values, seconds_read = _read(gtsam, source, graph)
     t0 = time.perf_counter()
-    if isinstance(source, (str, bytes)) or hasattr(source, "__fspath__"):
-        import os
-
-        path = os.fspath(source)
-        factors, file_values = gtsam.readG2o(path, True)
-        seconds_read = time.perf_counter() - t0
-        if graph is None:
-            from posegraph.io.g2o import read_g2o
-
-            graph = read_g2o(path)
-    else:
-        graph = source
-        factors = graph_to_gtsam(graph)
-        file_values = None
-        seconds_read = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    if init == "given":
-        start = np.asarray(initial, dtype=np.float64)
-        values = poses_to_values(graph.ids, start)
-        priors = gauge_priors(graph, start)
-    elif init == "file":
-        # A file without vertex lines (gtsam's sphere2500.txt) gives gtsam no values: use our model's poses.
-        if file_values is not None and file_values.size():
-            values = file_values
-        else:
-            values = poses_to_values(graph.ids, graph.poses)
-        priors = gauge_priors(graph)
-    else:
-        priors = gauge_priors(graph)
-        anchored = gtsam.NonlinearFactorGraph(factors)
-        anchored.push_back(priors)
-        values = gtsam.InitializePose3.initialize(anchored)
+    values, priors = _start(gtsam, graph, factors, file_values, init, initial)
     seconds_initialise = time.perf_counter() - t0
     initial_poses = values_to_poses(values, graph.ids)
     initial_cost = float(factors.error(values))
 
     full = gtsam.NonlinearFactorGraph(factors)
     full.push_back(priors)
+    result, iterations, costs, seconds_iterations, seconds_optimise = _optimise(
+        gtsam, full, values, method, max_iterations, relative_tolerance, absolute_tolerance
+    )
+    seconds_write = 0.0
+    if output is not None:
+        t0 = time.perf_counter()
+        gtsam.writeG2o(factors, result, str(output))
+        seconds_write = time.perf_counter() - t0
+    return GtsamResult(
+        poses=values_to_poses(result, graph.ids), initial_poses=initial_poses, initial_cost=initial_cost,
+        final_cost=float(factors.error(result)), iterations=iterations,
+        converged=iterations < int(max_iterations), method=method, init=init, costs=costs,
+        seconds_iterations=seconds_iterations, seconds_read=seconds_read, seconds_initialise=seconds_initialise,
+        seconds_optimise=seconds_optimise, seconds_write=seconds_write, version=_version(),
+    )  # fmt: skip
+
+
+def _read(gtsam, source, graph):
+    """``(graph, gtsam factors, gtsam's file values or None, seconds)``: gtsam's reading of ``source``, timed."""
+    if not (isinstance(source, (str, bytes)) or hasattr(source, "__fspath__")):
+        t0 = time.perf_counter()
+        factors = graph_to_gtsam(source)
+        return source, factors, None, time.perf_counter() - t0
+    import os
+
+    path = os.fspath(source)
+    if graph is None:
+        from posegraph.io.g2o import read_g2o
+
+        graph = read_g2o(path)  # also tells the dimension gtsam's reader must be given
+    t0 = time.perf_counter()
+    factors, file_values = gtsam.readG2o(path, not _is_planar(graph))
+    return graph, factors, file_values, time.perf_counter() - t0
+
+
+def _start(gtsam, graph, factors, file_values, init: str, initial):
+    """``(start values, gauge priors)`` for ``init`` (see :func:`run_gtsam`)."""
+    if init == "given":
+        start = np.asarray(initial, dtype=np.float64)
+        return poses_to_values(graph.ids, start), gauge_priors(graph, start)
+    priors = gauge_priors(graph)
+    if init == "file":
+        # A file without vertex lines (gtsam's sphere2500.txt, manhattan.g2o) gives gtsam no values:
+        # use our model's poses.
+        if file_values is not None and file_values.size():
+            return file_values, priors
+        return poses_to_values(graph.ids, graph.poses), priors
+    try:
+        if _is_planar(graph):
+            lago_graph = graph_to_gtsam(graph, diagonal=True)
+            lago_graph.push_back(priors)
+            return gtsam.lago.initialize(lago_graph), priors
+        anchored = gtsam.NonlinearFactorGraph(factors)
+        anchored.push_back(priors)
+        return gtsam.InitializePose3.initialize(anchored), priors
+    except (RuntimeError, IndexError) as exc:  # e.g. LAGO's "map::at" on ais2klinik, Pose3's indeterminate system
+        from posegraph.errors import GraphError
+
+        name = "lago.initialize" if _is_planar(graph) else "InitializePose3.initialize"
+        raise GraphError(
+            f"gtsam's {name} failed on this graph ({exc}); start gtsam from posegraph's poses instead "
+            "(compare --gtsam-start same)", graph.source,
+        ) from exc  # fmt: skip
+
+
+def _optimise(gtsam, full, values, method, max_iterations, relative_tolerance, absolute_tolerance):
+    """``(result, iterations, cost after each iteration, seconds of each, total seconds)`` of gtsam's LM or GN."""
     costs: list[float] = []
     stamps: list[float] = []
 
@@ -244,10 +319,7 @@ def run_gtsam(
         stamps.append(time.perf_counter())
         costs.append(float(error_after))
 
-    if method == "lm":
-        params = gtsam.LevenbergMarquardtParams()
-    else:
-        params = gtsam.GaussNewtonParams()
+    params = gtsam.LevenbergMarquardtParams() if method == "lm" else gtsam.GaussNewtonParams()
     params.setMaxIterations(int(max_iterations))
     params.setRelativeErrorTol(float(relative_tolerance))
     params.setAbsoluteErrorTol(float(absolute_tolerance))
@@ -258,36 +330,9 @@ def run_gtsam(
     else:
         optimizer = gtsam.GaussNewtonOptimizer(full, values, params)
     result = optimizer.optimize()
-    seconds_optimise = time.perf_counter() - t0
-    iterations = int(optimizer.iterations())
+    seconds = time.perf_counter() - t0
     starts = [t0] + stamps[:-1]
-    seconds_iterations = [b - a for a, b in zip(starts, stamps)]
-    poses = values_to_poses(result, graph.ids)
-    final_cost = float(factors.error(result))
-
-    seconds_write = 0.0
-    if output is not None:
-        t0 = time.perf_counter()
-        gtsam.writeG2o(factors, result, str(output))
-        seconds_write = time.perf_counter() - t0
-
-    return GtsamResult(
-        poses=poses,
-        initial_poses=initial_poses,
-        initial_cost=initial_cost,
-        final_cost=final_cost,
-        iterations=iterations,
-        converged=iterations < int(max_iterations),
-        method=method,
-        init=init,
-        costs=costs,
-        seconds_iterations=seconds_iterations,
-        seconds_read=seconds_read,
-        seconds_initialise=seconds_initialise,
-        seconds_optimise=seconds_optimise,
-        seconds_write=seconds_write,
-        version=_version(),
-    )
+    return result, int(optimizer.iterations()), costs, [b - a for a, b in zip(starts, stamps)], seconds
 
 
 def _version() -> str:

@@ -133,7 +133,9 @@ def _equal_scales(ax, lows: list, highs: list) -> None:
         if d == 3:
             ax.set_box_aspect((1, 1, 1))
         else:
-            ax.set_aspect("equal", adjustable="datalim")
+            # The limits above already span a square, so the box (not the data limits) adapts:
+            # adjustable="datalim" would override those limits with a warning.
+            ax.set_aspect("equal", adjustable="box")
     for name, set_label in zip("xyz", (ax.set_xlabel, ax.set_ylabel, getattr(ax, "set_zlabel", None))[:d]):
         set_label(name)
 

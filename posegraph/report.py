@@ -44,10 +44,12 @@ def graph_info(graph) -> dict:
     Keys: ``num_vertices, num_edges, num_fixed, num_components, degree_min, degree_max,
     degree_mean, degree_median, num_odometry_edges, num_loop_closures`` (from
     :func:`posegraph.graph.graph_facts`); ``id_min, id_max, ids_contiguous``; ``information``:
-    for the ``rotation`` and ``translation`` 3×3 diagonal blocks of Ω (``[ω; v]`` order) the range
-    of their diagonal entries and of their eigenvalues, the range of the eigenvalues of the whole
-    6×6 matrices, and ``coupled_edges``, the number of edges whose Ω couples rotation and translation
-    (a non-zero off-diagonal block); ``initial_cost``, ½ Σ eᵀ Ω e at the file's poses, and there
+    for the ``rotation`` and ``translation`` diagonal blocks of Ω (at the group's rotation and
+    translation axes: 3×3 and 3×3 of SE(3)'s ``[ω; v]``, 1×1 and 2×2 of SE(2)'s ``[v_x, v_y, ω]``)
+    the range of their diagonal entries and of their eigenvalues, the range of the eigenvalues of
+    the whole d×d matrices, and ``coupled_edges``, the number of edges whose Ω couples rotation and
+    translation (a non-zero off-diagonal block); ``group`` (``"SE3"`` or ``"SE2"``);
+    ``initial_cost``, ½ Σ eᵀ Ω e at the file's poses, and there
     ``chi2``, ``dof``, ``chi2_per_dof``, ``chi2_by_kind`` (:func:`chi2_summary`).
     """
     from dataclasses import asdict
@@ -61,7 +63,8 @@ def graph_info(graph) -> dict:
     info["ids_contiguous"] = bool(info["id_max"] - info["id_min"] + 1 == graph.num_vertices)
 
     omega = graph.information
-    blocks = {"rotation": omega[:, :3, :3], "translation": omega[:, 3:, 3:]}
+    rotation, translation = graph.group.rotation_block, graph.group.translation_block
+    blocks = {"rotation": omega[:, rotation, rotation], "translation": omega[:, translation, translation]}
     information: dict = {}
     for name, block in blocks.items():
         diagonal = np.diagonal(block, axis1=-2, axis2=-1)
@@ -71,8 +74,10 @@ def graph_info(graph) -> dict:
         information[name] = {"diagonal_min": lo, "diagonal_max": hi, "eigenvalue_min": elo, "eigenvalue_max": ehi}
     eigenvalues = np.linalg.eigvalsh(omega)
     information["eigenvalue_min"], information["eigenvalue_max"] = _range(eigenvalues)
-    information["coupled_edges"] = int(np.count_nonzero(np.any(omega[:, :3, 3:] != 0, axis=(1, 2))))
+    coupling = omega[:, rotation, translation]
+    information["coupled_edges"] = int(np.count_nonzero(np.any(coupling != 0, axis=(1, 2))))
     info["information"] = information
+    info["group"] = graph.group.name
     chi2 = chi2_summary(graph)
     info["initial_cost"] = chi2["cost"]
     info.update(chi2=chi2["chi2"], dof=chi2["dof"], chi2_per_dof=chi2["chi2_per_dof"], chi2_by_kind=chi2["by_kind"])

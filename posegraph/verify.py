@@ -3,9 +3,9 @@
 Every quantity is computed by this project for a batch of cases and compared with an independent
 reference:
 
-* **gtsam** (optional): ``Rot3``/``Pose3`` ``Expmap``, ``Logmap``, ``ExpmapDerivative`` (= Jr),
+* **gtsam** (optional): ``Rot3``/``Pose3``/``Pose2`` ``Expmap``, ``Logmap``, ``ExpmapDerivative`` (= Jr),
   ``LogmapDerivative`` (= Jr⁻¹), ``AdjointMap``, and the whitened Jacobians of
-  ``BetweenFactorPose3`` from ``linearize`` with a unit noise model (so the blocks are the plain
+  ``BetweenFactorPose3`` / ``BetweenFactorPose2`` from ``linearize`` with a unit noise model (so the blocks are the plain
   Jacobians ∂e/∂δ of ``e = Log(Z⁻¹ X_i⁻¹ X_j)``, and ``b = −e``);
 * **central finite differences** on the manifold, with right perturbations ``X ⊕ δ = X·Exp(δ)``:
   ``Jr(ξ)`` column k is ``[Log(Exp(ξ)⁻¹ Exp(ξ + h e_k)) − Log(Exp(ξ)⁻¹ Exp(ξ − h e_k))] / 2h``,
@@ -14,7 +14,8 @@ reference:
 * **identities**: ``Log(Exp(ξ)) = ξ`` for rotation angles below π, and
   ``X Exp(δ) X⁻¹ = Exp(Ad(X) δ)`` for the adjoint.
 
-Cases: random tangents (rotation angle uniform in [0, π), translations of size ~1–10), angles
+Groups: SO(3), SE(3), SO(2) (whose Jacobians are all ``[[1]]``: identities and finite differences
+only) and SE(2). Cases: random tangents (rotation angle uniform in [0, π), translations of size ~1–10), angles
 near 0 (0, 1e-12 … 1e-2, where closed forms need their Taylor branches) and near π (π − 1e-12 …
 π − 1e-3, where ``Log`` must not divide by sin θ), and, when a graph is given, its edges at the
 file's poses.
@@ -31,6 +32,13 @@ elementwise (relative for large entries, absolute for small ones), against a tol
   is off by 5e-10 at π − 1e-4 and 4e-8 at π − 1e-3, and ``Pose3.Logmap``'s translation by 3e-7 at
   π − 1e-3, while this project's stay at ~1e-15 (``docs/cli.md``). Our side is held to 1e-9 near π by
   the identities ``Log(Exp ξ) = ξ`` and ``Jr⁻¹·Jr = I`` and by the finite differences.
+* :data:`GTSAM_POSE2_MIN_ANGLE` (1e-2) — gtsam's ``Pose2`` ``Expmap``, ``ExpmapDerivative`` and
+  ``LogmapDerivative`` (and ``Logmap``, by ~1e-8) lose digits at small angles ω (gtsam 4.3, at
+  |v| ≈ 8: ``Expmap`` off by 6e-7 at ω = 1e-10, ``ExpmapDerivative`` by 1.2·ω below 1e-4,
+  ``LogmapDerivative`` by 3.7e-4 at ω = 1e-4 and 1e-7 at 1e-3, all below 2e-10 from 1e-2 on), while
+  this project's SE(2) agrees with finite differences there. So ``Pose2`` and
+  ``BetweenFactorPose2``'s Jacobians are compared with gtsam only where the (residual's) angle is at
+  least 1e-2; the edge residuals on all cases, and everything against finite differences.
 * :data:`FINITE_DIFFERENCE_TOLERANCE` (1e-6) — against central differences with step
   :data:`FINITE_DIFFERENCE_STEP` (1e-6): truncation error ~h²·|f'''| ≈ 1e-12 and round-off
   ~ε/h ≈ 1e-10 per entry, so 1e-6 only fails for a wrong formula (a sign, a transpose, a missing
@@ -41,6 +49,7 @@ elementwise (relative for large entries, absolute for small ones), against a tol
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -58,6 +67,7 @@ CLOSED_FORM_TOLERANCE = 1e-9
 GTSAM_NEAR_PI_TOLERANCE = 1e-6
 FINITE_DIFFERENCE_TOLERANCE = 1e-6
 FINITE_DIFFERENCE_STEP = 1e-6
+GTSAM_POSE2_MIN_ANGLE = 1e-2
 
 NEAR_ZERO_ANGLES = np.array([0.0, 1e-12, 1e-10, 1e-8, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2])
 NEAR_PI_MARGINS = np.array([1e-12, 1e-10, 1e-8, 1e-6, 1e-5, 1e-4, 1e-3])
@@ -117,29 +127,72 @@ def rotation_cases(rng, samples: int) -> dict[str, np.ndarray]:
     return {"random": random, "near 0": near_zero, "near π": near_pi}
 
 
-def pose_cases(rng, samples: int) -> dict[str, np.ndarray]:
-    """Tangents ``(k, 6)`` ``[ω; v]`` of SE(3) by family (rotation parts as :func:`rotation_cases`)."""
+def planar_rotation_cases(rng, samples: int) -> dict[str, np.ndarray]:
+    """Tangents ``(k, 1)`` of SO(2) by family: random in (−π, π), near 0 and near ±π (random signs)."""
+    sign = lambda k: rng.choice([-1.0, 1.0], size=(k, 1))  # noqa: E731
+    return {
+        "random": rng.uniform(-np.pi, np.pi, size=(samples, 1)),
+        "near 0": sign(len(NEAR_ZERO_ANGLES)) * NEAR_ZERO_ANGLES[:, None],
+        "near π": sign(len(NEAR_PI_MARGINS)) * (np.pi - NEAR_PI_MARGINS)[:, None],
+    }
+
+
+def _with_translations(rng, rotations: dict[str, np.ndarray], size: int, first: bool) -> dict[str, np.ndarray]:
+    """Each family's rotation tangents joined to random translations of ``size`` entries (~1 or ~10)."""
     out = {}
-    for family, omega in rotation_cases(rng, samples).items():
-        v = rng.normal(size=omega.shape) * rng.choice([1.0, 10.0], size=(len(omega), 1))
-        out[family] = np.concatenate([omega, v], axis=1)
+    for family, omega in rotations.items():
+        v = rng.normal(size=(len(omega), size)) * rng.choice([1.0, 10.0], size=(len(omega), 1))
+        out[family] = np.concatenate([omega, v] if first else [v, omega], axis=1)
     return out
 
 
-def _fd_steps(family: str, tangents: np.ndarray) -> np.ndarray:
+def pose_cases(rng, samples: int) -> dict[str, np.ndarray]:
+    """Tangents ``(k, 6)`` ``[ω; v]`` of SE(3) by family (rotation parts as :func:`rotation_cases`)."""
+    return _with_translations(rng, rotation_cases(rng, samples), 3, first=True)
+
+
+def planar_pose_cases(rng, samples: int) -> dict[str, np.ndarray]:
+    """Tangents ``(k, 3)`` ``[v_x, v_y, ω]`` of SE(2) by family (angles as :func:`planar_rotation_cases`)."""
+    return _with_translations(rng, planar_rotation_cases(rng, samples), 2, first=False)
+
+
+class _Group(NamedTuple):
+    """One group checked: its module's name and module, its cases, where its rotation angle is, gtsam's class."""
+
+    name: str
+    module: object
+    cases: object
+    rotation_axes: tuple
+    gtsam_class: str | None
+
+
+def _groups() -> list[_Group]:
+    from posegraph.lie import se2, se3, so2, so3
+
+    return [
+        _Group("so3", so3, rotation_cases, (0, 1, 2), "Rot3"),
+        _Group("se3", se3, pose_cases, (0, 1, 2), "Pose3"),
+        _Group("so2", so2, planar_rotation_cases, (0,), None),  # every Jacobian is [[1]]: no gtsam needed
+        _Group("se2", se2, planar_pose_cases, (2,), "Pose2"),
+    ]
+
+
+def _angles(tangents: np.ndarray, rotation_axes) -> np.ndarray:
+    return np.linalg.norm(tangents[:, list(rotation_axes)], axis=1)
+
+
+def _fd_steps(family: str, tangents: np.ndarray, rotation_axes=(0, 1, 2)) -> np.ndarray:
     """Per-case finite-difference step: the default, or a tenth of the distance to π."""
     h = np.full(len(tangents), FINITE_DIFFERENCE_STEP)
     if family == "near π":
-        margin = np.pi - np.linalg.norm(tangents[:, :3], axis=1)
-        h = np.minimum(h, margin / 10)
+        h = np.minimum(h, (np.pi - _angles(tangents, rotation_axes)) / 10)
     return h
 
 
-def _usable_for_fd(family: str, tangents: np.ndarray) -> np.ndarray:
+def _usable_for_fd(family: str, tangents: np.ndarray, rotation_axes=(0, 1, 2)) -> np.ndarray:
     if family != "near π":
         return tangents
-    margin = np.pi - np.linalg.norm(tangents[:, :3], axis=1)
-    return tangents[margin >= 1e-5]
+    return tangents[np.pi - _angles(tangents, rotation_axes) >= 1e-5]
 
 
 # ------------------------------------------------------------------------ finite differences
@@ -160,7 +213,7 @@ def _central_columns(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def _fd_jacobians(group, tangents: np.ndarray, h: np.ndarray) -> dict[str, np.ndarray]:
-    """Finite-difference Jr, Jl and Jr⁻¹ of ``group`` (the so3 or se3 module) at ``tangents``."""
+    """Finite-difference Jr, Jl and Jr⁻¹ of ``group`` (a :mod:`posegraph.lie` module) at ``tangents``."""
     X = group.exp(tangents)
     X_inv = _inverse(group, X)
     right = _central_columns(lambda x, d: group.log(X_inv @ group.exp(x + d)), tangents, h)
@@ -172,59 +225,45 @@ def _fd_jacobians(group, tangents: np.ndarray, h: np.ndarray) -> dict[str, np.nd
 def _inverse(group, X):
     if hasattr(group, "inverse"):
         return group.inverse(X)
-    return np.swapaxes(X, -1, -2)  # SO(3)
+    return np.swapaxes(X, -1, -2)  # SO(3), SO(2)
 
 
 # ------------------------------------------------------------------------------- gtsam side
 
 
-def _gtsam_rotation(gtsam, omega: np.ndarray) -> dict[str, np.ndarray]:
-    exp, log, jr, jr_inv = [], [], [], []
-    for w in omega:
-        R = gtsam.Rot3.Expmap(w)
-        exp.append(R.matrix())
-        jr.append(gtsam.Rot3.ExpmapDerivative(w))
-        jr_inv.append(gtsam.Rot3.LogmapDerivative(w))
-    return {"exp": np.array(exp), "right_jacobian": np.array(jr), "right_jacobian_inverse": np.array(jr_inv)}
-
-
-def _gtsam_rotation_log(gtsam, R: np.ndarray) -> np.ndarray:
-    return np.array([np.asarray(gtsam.Rot3.Logmap(gtsam.Rot3(r))).reshape(3) for r in R])
-
-
-def _gtsam_pose(gtsam, xi: np.ndarray) -> dict[str, np.ndarray]:
-    exp, jr, jr_inv, ad = [], [], [], []
+def _gtsam_group(gtsam, class_name: str, xi: np.ndarray) -> dict[str, np.ndarray]:
+    """gtsam's ``Expmap`` (as matrices and its ``Logmap`` of them), derivatives and, for poses, ``AdjointMap``."""
+    cls = getattr(gtsam, class_name)
+    out: dict[str, list] = {"exp": [], "log": [], "right_jacobian": [], "right_jacobian_inverse": [], "adjoint": []}
     for x in xi:
-        T = gtsam.Pose3.Expmap(x)
-        exp.append(T.matrix())
-        ad.append(T.AdjointMap())
-        jr.append(gtsam.Pose3.ExpmapDerivative(x))
-        jr_inv.append(gtsam.Pose3.LogmapDerivative(x))
-    return {
-        "exp": np.array(exp),
-        "adjoint": np.array(ad),
-        "right_jacobian": np.array(jr),
-        "right_jacobian_inverse": np.array(jr_inv),
-    }
-
-
-def _gtsam_pose_log(gtsam, T: np.ndarray) -> np.ndarray:
-    return np.array([np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(t))).reshape(6) for t in T])
+        element = cls.Expmap(x)
+        out["exp"].append(element.matrix())
+        out["log"].append(np.asarray(cls.Logmap(element)).reshape(-1))
+        out["right_jacobian"].append(cls.ExpmapDerivative(x))
+        out["right_jacobian_inverse"].append(cls.LogmapDerivative(x))
+        if hasattr(element, "AdjointMap"):
+            out["adjoint"].append(element.AdjointMap())
+    return {name: np.array(values) for name, values in out.items()}
 
 
 def _gtsam_between(gtsam, Xi, Xj, Z):
-    """Residuals ``(m, 6)`` and Jacobians ``(m, 6, 6)`` ×2 of gtsam's BetweenFactorPose3 (unit noise)."""
-    unit = gtsam.noiseModel.Unit.Create(6)
+    """Residuals ``(m, d)`` and Jacobians ``(m, d, d)`` ×2 of gtsam's BetweenFactorPose3 (Pose2 for
+    ``(m, 3, 3)`` poses), unit noise."""
+    from posegraph.gtsam_bridge import _gtsam_pose
+
+    d = 3 if Xi.shape[-1] == 3 else 6
+    between = gtsam.BetweenFactorPose2 if d == 3 else gtsam.BetweenFactorPose3
+    unit = gtsam.noiseModel.Unit.Create(d)
     residuals, jac_i, jac_j = [], [], []
     for a, b, z in zip(Xi, Xj, Z):
-        factor = gtsam.BetweenFactorPose3(0, 1, gtsam.Pose3(z), unit)
+        factor = between(0, 1, _gtsam_pose(gtsam, z), unit)
         values = gtsam.Values()
-        values.insert(0, gtsam.Pose3(a))
-        values.insert(1, gtsam.Pose3(b))
+        values.insert(0, _gtsam_pose(gtsam, a))
+        values.insert(1, _gtsam_pose(gtsam, b))
         A, rhs = factor.linearize(values).jacobian()
-        jac_i.append(A[:, :6])
-        jac_j.append(A[:, 6:])
-        residuals.append(-np.asarray(rhs).reshape(6))
+        jac_i.append(A[:, :d])
+        jac_j.append(A[:, d:])
+        residuals.append(-np.asarray(rhs).reshape(d))
     return np.array(residuals), np.array(jac_i), np.array(jac_j)
 
 
@@ -232,143 +271,134 @@ def _gtsam_between(gtsam, Xi, Xj, Z):
 
 
 def _lie_checks(rng, samples: int, gtsam) -> list[Check]:
-    from posegraph.lie import se3, so3
-
+    """Every group of :func:`_groups` on every family of its cases."""
     checks: list[Check] = []
-
-    def add(quantity, reference, family, count, diff, tol):
-        checks.append(Check(quantity, reference, family, int(count), float(diff), tol))
-
-    # SO(3)
-    for family, omega in rotation_cases(rng, samples).items():
-        R = so3.exp(omega)
-        mine = {
-            "exp": R,
-            "right_jacobian": so3.right_jacobian(omega),
-            "right_jacobian_inverse": so3.right_jacobian_inverse(omega),
-            "left_jacobian": so3.left_jacobian(omega),
-            "left_jacobian_inverse": so3.left_jacobian_inverse(omega),
-        }
-        k = len(omega)
-        add("so3.log(so3.exp(ω))", "ω", family, k, _scaled_difference(so3.log(R), omega), CLOSED_FORM_TOLERANCE)
-        add("so3.left_jacobian_inverse", "inverse of so3.left_jacobian", family, k,
-            _scaled_difference(mine["left_jacobian_inverse"] @ mine["left_jacobian"],
-                               np.broadcast_to(np.eye(3), (k, 3, 3))),
-            CLOSED_FORM_TOLERANCE)
-        near_pi = GTSAM_NEAR_PI_TOLERANCE if family == "near π" else CLOSED_FORM_TOLERANCE
-        if gtsam is not None:
-            ref = _gtsam_rotation(gtsam, omega)
-            add("so3.exp", "gtsam Rot3.Expmap", family, k, _scaled_difference(R, ref["exp"]), CLOSED_FORM_TOLERANCE)
-            add("so3.log", "gtsam Rot3.Logmap", family, k,
-                _scaled_difference(so3.log(ref["exp"]), _gtsam_rotation_log(gtsam, ref["exp"])), near_pi)
-            add("so3.right_jacobian", "gtsam Rot3.ExpmapDerivative", family, k,
-                _scaled_difference(mine["right_jacobian"], ref["right_jacobian"]), CLOSED_FORM_TOLERANCE)
-            add("so3.right_jacobian_inverse", "gtsam Rot3.LogmapDerivative", family, k,
-                _scaled_difference(mine["right_jacobian_inverse"], ref["right_jacobian_inverse"]), near_pi)
-        usable = _usable_for_fd(family, omega)
-        if len(usable):
-            fd = _fd_jacobians(so3, usable, _fd_steps(family, usable))
-            for name in ("right_jacobian", "left_jacobian", "right_jacobian_inverse"):
-                value = getattr(so3, name)(usable)
-                add(f"so3.{name}", "finite differences", family, len(usable),
-                    _scaled_difference(value, fd[name]), FINITE_DIFFERENCE_TOLERANCE)
-
-    # SE(3)
-    for family, xi in pose_cases(rng, samples).items():
-        T = se3.exp(xi)
-        k = len(xi)
-        add("se3.log(se3.exp(ξ))", "ξ", family, k, _scaled_difference(se3.log(T), xi), CLOSED_FORM_TOLERANCE)
-        # Ad(X) δ = Log(X Exp(δ) X⁻¹) for small δ, checked through Exp to avoid Log's branches.
-        delta = rng.normal(scale=0.1, size=(k, 6))
-        lhs = T @ se3.exp(delta) @ se3.inverse(T)
-        rhs = se3.exp(np.einsum("kij,kj->ki", se3.adjoint(T), delta))
-        add("se3.adjoint", "X·Exp(δ)·X⁻¹ = Exp(Ad(X)·δ)", family, k, _scaled_difference(lhs, rhs),
-            CLOSED_FORM_TOLERANCE)
-        jr = se3.right_jacobian(xi)
-        add("se3.right_jacobian_inverse", "inverse of se3.right_jacobian", family, k,
-            _scaled_difference(se3.right_jacobian_inverse(xi) @ jr, np.broadcast_to(np.eye(6), (k, 6, 6))),
-            CLOSED_FORM_TOLERANCE)
-        near_pi = GTSAM_NEAR_PI_TOLERANCE if family == "near π" else CLOSED_FORM_TOLERANCE
-        if gtsam is not None:
-            ref = _gtsam_pose(gtsam, xi)
-            add("se3.exp", "gtsam Pose3.Expmap", family, k, _scaled_difference(T, ref["exp"]), CLOSED_FORM_TOLERANCE)
-            add("se3.log", "gtsam Pose3.Logmap", family, k,
-                _scaled_difference(se3.log(ref["exp"]), _gtsam_pose_log(gtsam, ref["exp"])), near_pi)
-            add("se3.adjoint", "gtsam Pose3.AdjointMap", family, k,
-                _scaled_difference(se3.adjoint(T), ref["adjoint"]), CLOSED_FORM_TOLERANCE)
-            add("se3.right_jacobian", "gtsam Pose3.ExpmapDerivative", family, k,
-                _scaled_difference(jr, ref["right_jacobian"]), CLOSED_FORM_TOLERANCE)
-            add("se3.right_jacobian_inverse", "gtsam Pose3.LogmapDerivative", family, k,
-                _scaled_difference(se3.right_jacobian_inverse(xi), ref["right_jacobian_inverse"]), near_pi)
-        usable = _usable_for_fd(family, xi)
-        if len(usable):
-            fd = _fd_jacobians(se3, usable, _fd_steps(family, usable))
-            for name in ("right_jacobian", "left_jacobian", "right_jacobian_inverse"):
-                value = getattr(se3, name)(usable)
-                add(f"se3.{name}", "finite differences", family, len(usable),
-                    _scaled_difference(value, fd[name]), FINITE_DIFFERENCE_TOLERANCE)
+    for group in _groups():
+        for family, xi in group.cases(rng, samples).items():
+            checks += _identity_checks(group, family, xi, rng)
+            if gtsam is not None and group.gtsam_class is not None:
+                checks += _gtsam_checks(group, family, xi, gtsam)
+            checks += _finite_difference_checks(group, family, xi)
     return checks
 
 
+def _identity_checks(group: _Group, family: str, xi: np.ndarray, rng) -> list[Check]:
+    """``Log(Exp ξ) = ξ``, ``Jr⁻¹·Jr = I``, ``Jl⁻¹·Jl = I`` and, for poses, the adjoint's defining identity."""
+    g, n, k = group.module, group.name, len(xi)
+    eye = np.broadcast_to(np.eye(xi.shape[1]), (k, xi.shape[1], xi.shape[1]))
+    X = g.exp(xi)
+    checks = [
+        Check(f"{n}.log({n}.exp(ξ))", "ξ", family, k, _scaled_difference(g.log(X), xi), CLOSED_FORM_TOLERANCE),
+        Check(f"{n}.right_jacobian_inverse", f"inverse of {n}.right_jacobian", family, k,
+              _scaled_difference(g.right_jacobian_inverse(xi) @ g.right_jacobian(xi), eye), CLOSED_FORM_TOLERANCE),
+        Check(f"{n}.left_jacobian_inverse", f"inverse of {n}.left_jacobian", family, k,
+              _scaled_difference(g.left_jacobian_inverse(xi) @ g.left_jacobian(xi), eye), CLOSED_FORM_TOLERANCE),
+    ]  # fmt: skip
+    if hasattr(g, "adjoint"):
+        # Ad(X) δ = Log(X Exp(δ) X⁻¹) for small δ, checked through Exp to avoid Log's branches.
+        delta = rng.normal(scale=0.1, size=xi.shape)
+        lhs = X @ g.exp(delta) @ g.inverse(X)
+        rhs = g.exp(np.einsum("kij,kj->ki", g.adjoint(X), delta))
+        checks.append(Check(f"{n}.adjoint", "X·Exp(δ)·X⁻¹ = Exp(Ad(X)·δ)", family, k, _scaled_difference(lhs, rhs),
+                            CLOSED_FORM_TOLERANCE))  # fmt: skip
+    return checks
+
+
+def _gtsam_checks(group: _Group, family: str, xi: np.ndarray, gtsam) -> list[Check]:
+    """Exp, Log, Jr, Jr⁻¹ (and Ad) against gtsam's class; Log and Jr⁻¹ near π with gtsam's looser tolerance."""
+    g, n, cls = group.module, group.name, group.gtsam_class
+    ref = _gtsam_group(gtsam, cls, xi)
+    near_pi = GTSAM_NEAR_PI_TOLERANCE if family == "near π" else CLOSED_FORM_TOLERANCE
+    compared = [
+        ("exp", g.exp(xi), "Expmap", CLOSED_FORM_TOLERANCE),
+        ("log", g.log(ref["exp"]), "Logmap", near_pi),
+        ("right_jacobian", g.right_jacobian(xi), "ExpmapDerivative", CLOSED_FORM_TOLERANCE),
+        ("right_jacobian_inverse", g.right_jacobian_inverse(xi), "LogmapDerivative", near_pi),
+    ]
+    if hasattr(g, "adjoint"):
+        compared.append(("adjoint", g.adjoint(g.exp(xi)), "AdjointMap", CLOSED_FORM_TOLERANCE))
+    accurate = _angles(xi, group.rotation_axes) >= GTSAM_POSE2_MIN_ANGLE if cls == "Pose2" else np.ones(len(xi), bool)
+    checks = []
+    for name, mine, method, tolerance in compared:
+        if accurate.any():  # module docstring: gtsam's Pose2 at small angles
+            checks.append(Check(f"{n}.{name}", f"gtsam {cls}.{method}", family, int(accurate.sum()),
+                                _scaled_difference(mine[accurate], ref[name][accurate]), tolerance))  # fmt: skip
+    return checks
+
+
+def _finite_difference_checks(group: _Group, family: str, xi: np.ndarray) -> list[Check]:
+    """Jr, Jl and Jr⁻¹ against central differences (near π only where ``θ ± h`` stays below π)."""
+    usable = _usable_for_fd(family, xi, group.rotation_axes)
+    if not len(usable):
+        return []
+    fd = _fd_jacobians(group.module, usable, _fd_steps(family, usable, group.rotation_axes))
+    return [
+        Check(f"{group.name}.{name}", "finite differences", family, len(usable),
+              _scaled_difference(getattr(group.module, name)(usable), fd[name]), FINITE_DIFFERENCE_TOLERANCE)
+        for name in ("right_jacobian", "left_jacobian", "right_jacobian_inverse")
+    ]  # fmt: skip
+
+
 def _edge_checks(Xi, Xj, Z, family: str, gtsam) -> list[Check]:
-    """Residuals and Jacobians of edges ``(Xi, Xj, Z)`` ``(m, 4, 4)`` each."""
+    """Residuals and Jacobians of edges ``(Xi, Xj, Z)`` ``(m, k, k)`` each (SE(3), or SE(2) for ``k = 3``)."""
     from posegraph.graph import PoseGraph
-    from posegraph.lie import se3
+    from posegraph.lie.group import SE2, SE3
     from posegraph.solve.residuals import edge_jacobians, edge_residuals
 
-    m = len(Xi)
+    group = SE2 if Xi.shape[-1] == 3 else SE3
+    m, d = len(Xi), group.dim
     poses = np.concatenate([Xi, Xj])
     graph = PoseGraph(
         ids=np.arange(2 * m), poses=poses, edge_from=np.arange(m), edge_to=np.arange(m, 2 * m),
-        measurements=Z, information=np.broadcast_to(np.eye(6), (m, 6, 6)).copy(),
-    )
+        measurements=Z, information=np.broadcast_to(np.eye(d), (m, d, d)).copy(), group=group,
+    )  # fmt: skip
     residuals = edge_residuals(poses, graph)
     jac_i, jac_j = edge_jacobians(poses, graph)
     checks = []
     if gtsam is not None:
         ref_e, ref_i, ref_j = _gtsam_between(gtsam, Xi, Xj, Z)
-        checks += [
-            Check("edge residual", "gtsam BetweenFactorPose3", family, m, _scaled_difference(residuals, ref_e),
-                  CLOSED_FORM_TOLERANCE),
-            Check("edge Jacobian ∂e/∂δi", "gtsam BetweenFactorPose3", family, m, _scaled_difference(jac_i, ref_i),
-                  CLOSED_FORM_TOLERANCE),
-            Check("edge Jacobian ∂e/∂δj", "gtsam BetweenFactorPose3", family, m, _scaled_difference(jac_j, ref_j),
-                  CLOSED_FORM_TOLERANCE),
-        ]
+        factor = f"gtsam BetweenFactorPose{3 if d == 6 else 2}"
+        checks.append(
+            Check("edge residual", factor, family, m, _scaled_difference(residuals, ref_e), CLOSED_FORM_TOLERANCE)
+        )
+        # gtsam's Pose2 derivatives lose digits at small angles (module docstring).
+        cases = _angles(residuals, group.rotation_axes) >= GTSAM_POSE2_MIN_ANGLE if d == 3 else np.ones(m, bool)
+        if cases.any():
+            checks += [
+                Check("edge Jacobian ∂e/∂δi", factor, family, int(cases.sum()),
+                      _scaled_difference(jac_i[cases], ref_i[cases]), CLOSED_FORM_TOLERANCE),
+                Check("edge Jacobian ∂e/∂δj", factor, family, int(cases.sum()),
+                      _scaled_difference(jac_j[cases], ref_j[cases]), CLOSED_FORM_TOLERANCE),
+            ]  # fmt: skip
     # Log is discontinuous where the residual's rotation angle reaches π: finite differences skip
     # the (rare) edges within 1e-4 of it; gtsam is compared on all of them above.
-    smooth = np.linalg.norm(residuals[:, :3], axis=1) < np.pi - 1e-4
+    smooth = _angles(residuals, group.rotation_axes) < np.pi - 1e-4
     Xi, Xj, Z, jac_i, jac_j = Xi[smooth], Xj[smooth], Z[smooth], jac_i[smooth], jac_j[smooth]
     m = len(Xi)
     h = np.full(m, FINITE_DIFFERENCE_STEP)
-    Zinv = se3.inverse(Z)
-
-    def residual_moving_i(x, d):
-        return se3.log(Zinv @ se3.inverse(Xi @ se3.exp(d)) @ Xj)
-
-    def residual_moving_j(x, d):
-        return se3.log(Zinv @ se3.inverse(Xi) @ Xj @ se3.exp(d))
-
-    zeros = np.zeros((m, 6))
-    fd_i = _central_columns(residual_moving_i, zeros, h)
-    fd_j = _central_columns(residual_moving_j, zeros, h)
+    Zinv = group.inverse(Z)
+    zeros = np.zeros((m, d))
+    fd_i = _central_columns(lambda x, t: group.log(Zinv @ group.inverse(Xi @ group.exp(t)) @ Xj), zeros, h)
+    fd_j = _central_columns(lambda x, t: group.log(Zinv @ group.inverse(Xi) @ Xj @ group.exp(t)), zeros, h)
     checks += [
         Check("edge Jacobian ∂e/∂δi", "finite differences", family, m, _scaled_difference(jac_i, fd_i),
               FINITE_DIFFERENCE_TOLERANCE),
         Check("edge Jacobian ∂e/∂δj", "finite differences", family, m, _scaled_difference(jac_j, fd_j),
               FINITE_DIFFERENCE_TOLERANCE),
-    ]
+    ]  # fmt: skip
     return checks
 
 
-def _random_edges(rng, samples: int, residual_scale: float):
-    from posegraph.lie import se3
+def _random_edges(rng, samples: int, residual_scale: float, planar: bool = False):
+    """Random edges ``(Xi, Xj, Z)`` of SE(3) (SE(2) if ``planar``) with residuals of ``residual_scale``."""
+    from posegraph.lie import se2, se3
 
-    cases = pose_cases(rng, samples)["random"]
-    Xi = se3.exp(cases)
-    Xj = se3.exp(pose_cases(rng, samples)["random"])
+    group, cases = (se2, planar_pose_cases) if planar else (se3, pose_cases)
+    Xi = group.exp(cases(rng, samples)["random"])
+    Xj = group.exp(cases(rng, samples)["random"])
     # Measurements close to the truth (residual angles ≲ 3·residual_scale, far from π).
-    Z = se3.between(Xi, Xj) @ se3.exp(rng.normal(scale=residual_scale, size=(samples, 6)))
+    noise = rng.normal(scale=residual_scale, size=(samples, Xi.shape[-1] * (Xi.shape[-1] - 1) // 2))
+    Z = group.between(Xi, Xj) @ group.exp(noise)
     return Xi, Xj, Z
 
 
@@ -386,8 +416,9 @@ def verify_all(graph=None, *, samples: int = 500, seed: int = 0, use_gtsam: bool
     rng = np.random.default_rng(seed)
     samples = max(int(samples), 1)
     checks = _lie_checks(rng, samples, gtsam)
-    for label, scale in (("random, small residuals", 0.05), ("random, large residuals", 0.6)):
-        checks += _edge_checks(*_random_edges(rng, samples, scale), label, gtsam)
+    for planar, space in ((False, ""), (True, "SE(2) ")):
+        for label, scale in (("random, small residuals", 0.05), ("random, large residuals", 0.6)):
+            checks += _edge_checks(*_random_edges(rng, samples, scale, planar), space + label, gtsam)
     if graph is not None and graph.num_edges:
         Xi = graph.poses[graph.edge_from]
         Xj = graph.poses[graph.edge_to]

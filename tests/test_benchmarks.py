@@ -106,8 +106,9 @@ def test_dataset_discovery(tmp_path):
     (tmp_path / "b.g2o").write_text("VERTEX_SE2 0 0 0 0\n")
     (tmp_path / "c.txt").write_text("EDGE3 0 1 1 0 0 0 0 0 " + " ".join(["1"] * 21) + "\n")
     (tmp_path / "d.csv").write_text("VERTEX_SE3:QUAT\n")
+    (tmp_path / "e.g2o").write_text("VERTEX_TRACKXYZ 0 1 2 3\n")
     names = [d.name for d in harness.user_datasets([str(tmp_path)])]
-    assert names == ["a", "c"]
+    assert names == ["a", "b", "c"]  # 3D and 2D pose graphs; neither a .csv nor other tags
     assert harness.count_graph(tmp_path / "c.txt") == (2, 1)
     with pytest.raises(FileNotFoundError):
         harness.user_datasets([str(tmp_path / "missing")])

@@ -26,7 +26,8 @@ DESCRIPTION = (
 EXAMPLES = """
   posegraph compare tinyGrid3D.g2o
   posegraph compare sphere2500.g2o --method gn --report compare.json
-  posegraph compare garage.g2o --init chordal --gtsam-start own    (gtsam's own InitializePose3)"""
+  posegraph compare garage.g2o --init chordal --gtsam-start own    (gtsam's own InitializePose3)
+  posegraph compare intel.g2o --gtsam-start own                      (2D: Pose2 factors, gtsam's LAGO)"""
 
 
 def add_arguments(p) -> None:
@@ -35,7 +36,7 @@ def add_arguments(p) -> None:
     solver_options(p)
     p.add_argument("--gtsam-start", choices=("same", "own"), default="same",
                    help="start gtsam from posegraph's initial poses (default), or let it start on its own: "
-                        "InitializePose3 for --init chordal, the file's poses for --init file (gtsam has no "
+                        "InitializePose3 (LAGO for a 2D graph) for --init chordal, the file's poses for --init file (gtsam has no "
                         "odometry initialiser: --init odometry always shares the start)")
     p.add_argument("--cost-tolerance", type=non_negative_float, default=COMPARE_COST_TOLERANCE, metavar="TOL",
                    help="largest relative difference of the final costs counted as agreement")
@@ -102,14 +103,15 @@ def _run_gtsam(args, status: Status, ours: dict):
 
 
 def _compare(our_poses, their_poses, our_cost: float, their_cost: float) -> dict:
-    """Largest rotation (degrees) and translation differences of two ``(n, 4, 4)`` solutions, and
-    ``|our_cost − their_cost| / max(1, |their_cost|)``."""
+    """Largest rotation (degrees) and translation differences of two ``(n, k, k)`` solutions (SE(3) or
+    SE(2)), and ``|our_cost − their_cost| / max(1, |their_cost|)``."""
     import numpy as np
 
     from posegraph.evaluate import rotation_angle
 
-    rot = np.degrees(rotation_angle(np.swapaxes(our_poses[:, :3, :3], -1, -2) @ their_poses[:, :3, :3]))
-    trans = np.linalg.norm(our_poses[:, :3, 3] - their_poses[:, :3, 3], axis=-1)
+    r = our_poses.shape[-1] - 1
+    rot = np.degrees(rotation_angle(np.swapaxes(our_poses[:, :r, :r], -1, -2) @ their_poses[:, :r, :r]))
+    trans = np.linalg.norm(our_poses[:, :r, r] - their_poses[:, :r, r], axis=-1)
     return {
         "final_cost_relative_difference": abs(our_cost - their_cost) / max(1.0, abs(their_cost)),
         "max_rotation_difference_deg": float(rot.max()) if rot.size else 0.0,

@@ -11,7 +11,8 @@ datasets (and in evo's reports, whose layout this follows)."""
 NAME = "eval"
 HELP = "trajectory errors (ATE, RPE) against a reference"
 DESCRIPTION = (
-    "Absolute trajectory error after a least-squares SE(3) alignment (Umeyama/Horn, no scale) "
+    "Absolute trajectory error after a least-squares SE(3) alignment (SE(2) for two 2D graphs; "
+    "Umeyama/Horn, no scale) "
     "and relative pose error between consecutive ids, as rmse/mean/median/std/min/max in the way "
     "evo reports them. Each file may be g2o (poses keyed by vertex id), TUM ('timestamp tx ty tz qx "
     "qy qz qw', keyed by timestamp) or KITTI (3x4 matrix per line, keyed by line number), plain or "
@@ -75,7 +76,8 @@ def run(args) -> int:
     print(f"estimate:  {estimate}")
     print(f"reference: {reference}")
     print(f"matched:   {result.num_matched} poses by vertex id; ATE after "
-          + ("a least-squares SE(3) alignment (Umeyama, no scale)" if not args.no_align else "no alignment")
+          + (f"a least-squares {_alignment_group(estimate_poses, reference_poses)} alignment (Umeyama, no scale)"
+             if not args.no_align else "no alignment")
           + f"; RPE between consecutive ids; translations in {LENGTH_UNIT} (the files' unit), rotations in degrees")
     names = ("rmse", "mean", "median", "std", "min", "max")
     print(f"{'':<24}" + "".join(f"{n:>12}" for n in names))
@@ -84,3 +86,9 @@ def run(args) -> int:
     for label, stats in rows:
         print(f"{label:<24}" + "".join(f"{getattr(stats, n):>12.6f}" for n in names))
     return EXIT_OK
+
+
+def _alignment_group(estimate_poses, reference_poses) -> str:
+    """``"SE(2)"`` when both trajectories are planar ``(n, 3, 3)`` (:func:`posegraph.evaluate.evaluate` then
+    aligns in the plane), else ``"SE(3)"``."""
+    return "SE(2)" if estimate_poses.shape[-1] == reference_poses.shape[-1] == 3 else "SE(3)"

@@ -76,7 +76,7 @@ def _read_for_description(args):
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     """The text output's ``(label, value)`` lines from :func:`posegraph.report.graph_info`."""
     rows = [
-        ("file", display_name(path)),
+        ("file", display_name(path) + ("" if info["group"] == "SE3" else " (2D: SE(2) poses)")),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "
                      + ("contiguous" if info["ids_contiguous"] else "not contiguous")
                      + f"), {info['num_fixed']} fixed"),
@@ -92,7 +92,8 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
                      f"diagonal {r['diagonal_min']:.4g} .. {r['diagonal_max']:.4g}, "
                      f"eigenvalues {r['eigenvalue_min']:.4g} .. {r['eigenvalue_max']:.4g}"))
     whole = info["information"]
-    rows.append(("information, 6x6", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
+    size = 6 if info["group"] == "SE3" else 3
+    rows.append((f"information, {size}x{size}", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
     rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (½χ² at the file's poses; χ² "
                                  f"{fmt_cost(info['chi2'])}, χ²/dof {info['chi2_per_dof']:.4g}, dof {info['dof']})"))

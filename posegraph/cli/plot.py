@@ -1,4 +1,4 @@
-"""``posegraph plot``: trajectories of one or more graphs drawn in 3D."""
+"""``posegraph plot``: trajectories of one or more graphs drawn in 3D (2D graphs: a top view)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from posegraph.cli.common import (
 )
 
 NAME = "plot"
-HELP = "draw trajectories in 3D (PNG, PDF, SVG)"
+HELP = "draw trajectories in 3D or, for 2D graphs, from the top (PNG, PDF, SVG)"
 DESCRIPTION = (
     "Draw each graph's vertex positions joined in id order, its loop-closure edges faintly, "
-    "several files overlaid with a legend. Needs matplotlib (pip install \"posegraph[plot]\")."
+    "several files overlaid with a legend; 2D graphs as a top view of the x-y plane. Needs matplotlib (pip install \"posegraph[plot]\")."
 )
 EXAMPLES = """
   posegraph plot sphere2500.g2o -o sphere.png

@@ -7,14 +7,15 @@ from posegraph.cli.common import EXIT_NOT_CONVERGED, EXIT_OK, Status, non_negati
 NAME = "verify-jacobians"
 HELP = "check the Lie-group core and edge Jacobians"
 DESCRIPTION = (
-    "Cross-validate SO(3)/SE(3) Exp, Log, adjoints, Jacobians and the edge-residual Jacobians "
-    "against gtsam and against central finite differences, on random samples, on angles near 0 and "
+    "Cross-validate SO(3)/SE(3)/SO(2)/SE(2) Exp, Log, adjoints, Jacobians and the edge-residual Jacobians "
+    "(3D and 2D) against gtsam and against central finite differences, on random samples, on angles near 0 and "
     "near pi, and on the edges of IN when given. Prints the largest difference per quantity and "
     "its tolerance; exit status 1 when any exceeds it."
 )
 EXAMPLES = """
   posegraph verify-jacobians
   posegraph verify-jacobians sphere2500.g2o --samples 2000
+  posegraph verify-jacobians intel.g2o      (a 2D graph: BetweenFactorPose2)
   posegraph verify-jacobians --no-gtsam       (finite differences only)"""
 
 

@@ -38,12 +38,12 @@ METHODS = ("chordal", "odometry", "file")
 
 
 def file_initialization(graph: PoseGraph) -> np.ndarray:
-    """``(n, 4, 4)`` — a copy of the poses as read."""
+    """``(n, k, k)`` — a copy of the poses as read."""
     return np.array(graph.poses, dtype=np.float64, copy=True)
 
 
 def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarray:
-    """Initial poses ``(n, 4, 4)`` for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
+    """Initial poses ``(n, k, k)`` (``k = graph.group.matrix_size``) for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
 
     ``options`` go to the method's function: ``linear_solver=`` for ``"chordal"``, ``tree=`` for
     ``"odometry"``.
@@ -51,7 +51,8 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if graph.num_vertices == 0:
-        return np.zeros((0, 4, 4))
+        k = graph.group.matrix_size
+        return np.zeros((0, k, k))
     if method == "file":
         if options:
             raise TypeError(f"method 'file' takes no options, got {sorted(options)}")

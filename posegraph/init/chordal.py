@@ -4,30 +4,40 @@ Martinec & Pajdla, "Robust rotation and translation estimation in multiview reco
 CVPR 2007; Carlone, Tron, Daniilidis & Dellaert, "Initialization techniques for 3D SLAM: a survey
 on rotation estimation and its use in pose graph optimization", ICRA 2015.
 
+Both stages are written once for the graph's group (:class:`posegraph.lie.group.LieGroup`):
+rotations ``R`` are r×r (r = 3 for SE(3), r = 2 for SE(2)), translations have r entries.
+
 Stage 1 — rotations. Each edge ``i → j`` measures ``R_z ≈ R_iᵀ R_j``, i.e. ``R_j ≈ R_i R_z``.
-Dropping the constraint ``R ∈ SO(3)`` leaves a linear least-squares problem in the matrix
+Dropping the constraint ``R ∈ SO(r)`` leaves a linear least-squares problem in the matrix
 entries,
 
     ``min Σ_e w_e ‖R_j − R_i R_z‖_F²  =  min Σ_e w_e ‖Y_j − R_zᵀ Y_i‖_F²``,  ``Y_k = R_kᵀ``,
 
 with the held rotations (fixed vertices and anchors) eliminated as known values, not added as
-priors. The three columns of ``Y`` (the rows of ``R``) do not interact: it is one sparse SPD
-system of size 3p×3p (p free vertices; its 3×3 blocks are ``w I`` summed on the diagonal and
-``−w R_z`` off it, a "connection Laplacian") with three right-hand sides, factorised once. Each
-solved 3×3 block is then projected onto SO(3) — the nearest rotation in the Frobenius norm, by
-SVD with the determinant fixed to +1 (:func:`posegraph.lie.so3.project`). ``w_e = tr(Ω_ωω)/3``,
-see :mod:`posegraph.init.weights`.
+priors. The r columns of ``Y`` (the rows of ``R``) do not interact: it is one sparse SPD
+system of size rp×rp (p free vertices; its r×r blocks are ``w I`` summed on the diagonal and
+``−w R_z`` off it, a "connection Laplacian") with r right-hand sides, factorised once. Each
+solved r×r block is then projected onto SO(r) — the nearest rotation in the Frobenius norm (SO(3):
+by SVD with the determinant fixed to +1, :func:`posegraph.lie.so3.project`; SO(2): the rotation by
+``atan2(m₁₀ − m₀₁, m₀₀ + m₁₁)``, :func:`posegraph.lie.so2.project`). ``w_e = tr(Ω_ωω)/3`` (2D:
+``Ω_θθ``), see :mod:`posegraph.init.weights`. In 2D this is the relaxation of Carlone et al.'s
+"R_j ≈ R_i R_ij" over the entries of 2×2 matrices (a complex-number least squares), where gtsam's
+LAGO instead solves for unwrapped angles along a spanning tree's cycles.
 
 Stage 2 — translations given the rotations. With all ``R_k`` known, an edge's rotation error
 ``δ = Log(R_zᵀ R_iᵀ R_j)`` is known, and the translation part of ``Log(Z⁻¹ Xi⁻¹ Xj)`` is
 
-    ``v = J_l(δ)⁻¹ R_zᵀ (R_iᵀ (t_j − t_i) − t_z)``,
+    ``v = V(δ)⁻¹ R_zᵀ (R_iᵀ (t_j − t_i) − t_z)``,
 
-affine in the translations. The edge cost ``½ [δ; v]ᵀ Ω [δ; v]`` is therefore *exactly*
+where ``V(δ)⁻¹`` maps a pose's translation to the translation part of its ``Log`` (SE(3):
+``J_l(δ)⁻¹`` of SO(3); SE(2): ``E I − (ω/2) J``); it is the translation block of the group's
+``Jl([δ; 0])⁻¹``, which is how it is computed here for any group. The cost is then
+
+affine in the translations, and the edge cost ``½ [δ; v]ᵀ Ω [δ; v]`` is *exactly*
 quadratic in them, and its minimiser over ``v`` is ``v* = −Ω_vv⁻¹ Ω_vω δ``. Minimising the
-graph's true cost over all translations at fixed rotations is one sparse SPD solve (3p×3p, one
-right-hand side) with, per edge, ``B = J_l(δ)⁻¹ R_zᵀ R_iᵀ``, weight ``Bᵀ Ω_vv B`` and weighted
-offset ``Bᵀ (Ω_vv J_l(δ)⁻¹ R_zᵀ t_z − Ω_vω δ)``. The returned start is thus the best start
+graph's true cost over all translations at fixed rotations is one sparse SPD solve (rp×rp, one
+right-hand side) with, per edge, ``B = V(δ)⁻¹ R_zᵀ R_iᵀ``, weight ``Bᵀ Ω_vv B`` and weighted
+offset ``Bᵀ (Ω_vv V(δ)⁻¹ R_zᵀ t_z − Ω_vω δ)``. The returned start is thus the best start
 with the chordal rotations: its cost is the cost's minimum over translations.
 """
 
@@ -41,13 +51,12 @@ from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
 from posegraph.init.weights import rotation_weights, translation_information
-from posegraph.lie import so3
 
 __all__ = ["chordal_initialization", "chordal_problem", "chordal_rotations", "translations_given_rotations"]
 
 
 def chordal_rotations(graph: PoseGraph, *, linear_solver: str = "auto") -> np.ndarray:
-    """``(n, 3, 3)`` rotations by the chordal relaxation; held vertices keep their file rotation.
+    """``(n, r, r)`` rotations by the chordal relaxation; held vertices keep their file rotation.
 
     See the module docstring (stage 1). ``linear_solver``: ``"auto"``, ``"cholmod"`` or
     ``"scipy"`` (:class:`posegraph.init.linear_system.RelativeLeastSquares`).
@@ -59,7 +68,7 @@ def chordal_rotations(graph: PoseGraph, *, linear_solver: str = "auto") -> np.nd
 def translations_given_rotations(
     graph: PoseGraph, rotations: np.ndarray, *, linear_solver: str = "auto"
 ) -> np.ndarray:
-    """``(n, 3)`` translations minimising the graph's cost with the rotations held at ``rotations``.
+    """``(n, r)`` translations minimising the graph's cost with the rotations held at ``rotations (n, r, r)``.
 
     Held vertices keep their file translation. Exact for positive-definite information (module
     docstring, stage 2); an ``Ω_vv`` with eigenvalues below the floor of
@@ -67,15 +76,16 @@ def translations_given_rotations(
     """
     require_usable(graph)
     rotations = np.asarray(rotations, dtype=np.float64)
-    if rotations.shape != (graph.num_vertices, 3, 3):
-        raise ValueError(f"rotations must have shape {(graph.num_vertices, 3, 3)}, got {rotations.shape}")
+    r = graph.group.space_dim
+    if rotations.shape != (graph.num_vertices, r, r):
+        raise ValueError(f"rotations must have shape {(graph.num_vertices, r, r)}, got {rotations.shape}")
     return _translations(graph, rotations, chordal_problem(graph, linear_solver))
 
 
 def chordal_initialization(
     graph: PoseGraph, *, linear_solver: str = "auto", problem: RelativeLeastSquares | None = None
 ) -> np.ndarray:
-    """``(n, 4, 4)`` poses: chordal rotations, then the cost-minimising translations given them.
+    """``(n, k, k)`` poses: chordal rotations, then the cost-minimising translations given them.
 
     Fixed vertices and component anchors keep their file pose exactly. Works for any number of
     components, duplicate edges, degree-one vertices and information spanning many decades.
@@ -100,10 +110,11 @@ def chordal_initialization(
             f"the chordal initialisation failed numerically ({err}); the information matrices may span too "
             "many decades: try the odometry initialisation", graph.source,
         ) from err  # fmt: skip
-    poses = np.zeros((graph.num_vertices, 4, 4))
-    poses[:, :3, :3] = rotations
-    poses[:, :3, 3] = translations
-    poses[:, 3, 3] = 1.0
+    r = graph.group.space_dim
+    poses = np.zeros((graph.num_vertices, r + 1, r + 1))
+    poses[:, :r, :r] = rotations
+    poses[:, :r, r] = translations
+    poses[:, r, r] = 1.0
     held = problem.held
     poses[held] = graph.poses[held]  # bit-exact, bottom row as read included
     return poses
@@ -111,43 +122,55 @@ def chordal_initialization(
 
 def chordal_problem(graph: PoseGraph, linear_solver: str = "auto") -> RelativeLeastSquares:
     """The sparse system both chordal stages solve, analysed for ``graph``'s edges and held vertices."""
-    return RelativeLeastSquares(held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver)
+    return RelativeLeastSquares(
+        held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver, block=graph.group.space_dim
+    )
 
 
 def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:
     """Stage 1: solve for ``Y_k = R_kᵀ`` (residual ``Y_j − R_zᵀ Y_i``, weight ``w I``), project."""
-    file_rotations = graph.poses[:, :3, :3]
-    weights = rotation_weights(graph.information)
+    r = graph.group.space_dim
+    file_rotations = graph.poses[:, :r, :r]
+    weights = rotation_weights(graph.information, graph.group)
     transposed = problem.solve(
         file_rotations.transpose(0, 2, 1),
-        transfer=graph.measurements[:, :3, :3].transpose(0, 2, 1),
-        weight=weights[:, None, None] * np.eye(3),
+        transfer=graph.measurements[:, :r, :r].transpose(0, 2, 1),
+        weight=weights[:, None, None] * np.eye(r),
     )
     rotations = np.array(file_rotations, copy=True)
     free = ~problem.held
-    rotations[free] = so3.project(transposed[free].transpose(0, 2, 1))
+    rotations[free] = graph.group.rotations.project(transposed[free].transpose(0, 2, 1))
     return rotations
+
+
+def _translation_log_matrix(group, rotation_error: np.ndarray) -> np.ndarray:
+    """``(m, r, r)`` ``V(δ)⁻¹``: the translation block of ``Jl([δ; 0])⁻¹`` (module docstring, stage 2)."""
+    tangent = np.zeros(rotation_error.shape[:-1] + (group.dim,))
+    tangent[..., list(group.rotation_axes)] = rotation_error
+    translation = list(group.translation_axes)
+    return group.left_jacobian_inverse(tangent)[..., translation, :][..., translation]
 
 
 def _translations(graph: PoseGraph, rotations: np.ndarray, problem: RelativeLeastSquares) -> np.ndarray:
     """Stage 2: residual ``t_j − t_i − h`` with weight ``Bᵀ Ω_vv B`` (module docstring)."""
+    group, r = graph.group, graph.group.space_dim
     i, j = graph.edge_from, graph.edge_to
-    measured_rotation_t = graph.measurements[:, :3, :3].transpose(0, 2, 1)
-    rotation_error = so3.log(measured_rotation_t @ rotations[i].transpose(0, 2, 1) @ rotations[j])  # δ
-    to_residual = so3.left_jacobian_inverse(rotation_error) @ measured_rotation_t  # J_l(δ)⁻¹ R_zᵀ
+    measured_rotation_t = graph.measurements[:, :r, :r].transpose(0, 2, 1)
+    rotation_error = group.rotations.log(measured_rotation_t @ rotations[i].transpose(0, 2, 1) @ rotations[j])  # δ
+    to_residual = _translation_log_matrix(group, rotation_error) @ measured_rotation_t  # V(δ)⁻¹ R_zᵀ
     transfer_b = to_residual @ rotations[i].transpose(0, 2, 1)  # B
-    offset = (to_residual @ graph.measurements[:, :3, 3:4])[..., 0]  # J_l(δ)⁻¹ R_zᵀ t_z
+    offset = (to_residual @ graph.measurements[:, :r, r : r + 1])[..., 0]  # V(δ)⁻¹ R_zᵀ t_z
 
-    omega_vv = translation_information(graph.information)
-    omega_v_omega = graph.information[:, 3:, :3]
+    omega_vv = translation_information(graph.information, group)
+    omega_v_omega = graph.information[:, group.translation_block, group.rotation_block]
     weight = transfer_b.transpose(0, 2, 1) @ omega_vv @ transfer_b
     weight = 0.5 * (weight + weight.transpose(0, 2, 1))
     weighted_offset = transfer_b.transpose(0, 2, 1) @ (
         omega_vv @ offset[..., None] - omega_v_omega @ rotation_error[..., None]
     )
     translations = problem.solve(
-        graph.poses[:, :3, 3:4],
-        transfer=np.broadcast_to(np.eye(3), (graph.num_edges, 3, 3)),
+        graph.poses[:, :r, r : r + 1],
+        transfer=np.broadcast_to(np.eye(r), (graph.num_edges, r, r)),
         weight=weight,
         weighted_offset=weighted_offset,
     )

@@ -1,11 +1,11 @@
 """The sparse linear least-squares problem both chordal stages solve, and its SPD solve.
 
-Both the chordal rotations and the translations given rotations minimise, over one 3×k block
-``x_k`` per vertex,
+Both the chordal rotations and the translations given rotations minimise, over one r×k block
+``x_k`` per vertex (``r`` the space dimension: 3 for 3D graphs, 2 for planar ones),
 
     ``Σ_e  ½ tr((x_j − P_e x_i − h_e)ᵀ W_e (x_j − P_e x_i − h_e))``,
 
-with a 3×3 transfer ``P_e``, a 3×3 symmetric positive-definite weight ``W_e`` and an offset
+with an r×r transfer ``P_e``, an r×r symmetric positive-definite weight ``W_e`` and an offset
 ``h_e`` (given as ``g_e = W_e h_e``, which is what the normal equations need). Held vertices
 (fixed and anchors, :func:`posegraph.graph.held_vertices`) are *eliminated*, not softly anchored by a
 prior: their blocks move to the right-hand side. Setting the gradient to zero gives, per edge,
@@ -15,7 +15,7 @@ the normal-equation blocks
     ``b_j += g``,  ``b_i −= Pᵀ g``,
 
 and a held ``x_i`` (resp. ``x_j``) adds ``W P x_i`` to ``b_j`` (resp. ``Pᵀ W x_j`` to ``b_i``).
-The matrix ``H`` (3p×3p for p free vertices) is the same for all k columns: one factorisation,
+The matrix ``H`` (rp×rp for p free vertices) is the same for all k columns: one factorisation,
 k right-hand sides. It is positive definite whenever every component holds a vertex and every
 ``W_e`` is positive definite, which :mod:`posegraph.init.weights` guarantees.
 
@@ -41,8 +41,6 @@ __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
 LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
 
-_AXIS = np.arange(3)
-
 
 class RelativeLeastSquares:
     """The relative least-squares problem of the module docstring for one edge set and held set.
@@ -62,6 +60,8 @@ class RelativeLeastSquares:
     threads : int or None, default 1
         Threads of the BLAS under CHOLMOD during its work
         (:class:`posegraph.native_threads.NativeThreads`; None leaves it as it is).
+    block : int, default 3
+        ``r``, the rows of each vertex's block ``x_k`` (3 for 3D graphs, 2 for planar ones).
     """
 
     def __init__(
@@ -72,6 +72,7 @@ class RelativeLeastSquares:
         *,
         linear_solver: str = "auto",
         threads: int | None = 1,
+        block: int = 3,
     ):
         if linear_solver not in LINEAR_SOLVERS:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
@@ -79,6 +80,7 @@ class RelativeLeastSquares:
             raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
         self.linear_solver = linear_solver
         self.threads = threads
+        self.block = int(block)
         self.held = np.asarray(held, dtype=bool)
         self.edge_from = np.asarray(edge_from, dtype=np.int64)
         self.edge_to = np.asarray(edge_to, dtype=np.int64)
@@ -95,11 +97,13 @@ class RelativeLeastSquares:
     def _analyse_pattern(self) -> None:
         """CSC pattern of H and the CSC position of every per-edge block entry (see :meth:`_matrix`).
 
-        Works on 3×3 blocks (one sort of the block pairs, not of 9× as many entries): with the
-        stored blocks sorted by (block column c, block row r), scalar column ``3c + b`` holds the
-        column's ``count_c`` blocks one after another, so entry ``(a, b)`` of the ``s``-th block of
-        block column ``c`` sits at ``9·(blocks before column c) + 3·count_c·b + 3·s + a``.
+        Works on r×r blocks (one sort of the block pairs, not of r² times as many entries): with
+        the stored blocks sorted by (block column c, block row q), scalar column ``r·c + b`` holds
+        the column's ``count_c`` blocks one after another, so entry ``(a, b)`` of the ``s``-th block
+        of block column ``c`` sits at ``r²·(blocks before column c) + r·count_c·b + r·s + a``.
         """
+        r = self.block
+        axis = np.arange(r)
         i, j, var = self.edge_from, self.edge_to, self.variable
         block_rows = np.concatenate(
             [var[j[self.free_to]], var[i[self.free_from]], var[j[self.both_free]], var[i[self.both_free]]]
@@ -114,14 +118,14 @@ class RelativeLeastSquares:
         blocks_before = np.concatenate([[0], np.cumsum(count)])
         rank = np.arange(keys.size) - blocks_before[cols]  # s: rank of the block within its column
         # positions (block, a, b) for every stored block
-        base = 9 * blocks_before[cols] + 3 * rank
-        position = base[:, None, None] + _AXIS[None, :, None] + 3 * count[cols][:, None, None] * _AXIS[None, None, :]
+        base = r * r * blocks_before[cols] + r * rank
+        position = base[:, None, None] + axis[None, :, None] + r * count[cols][:, None, None] * axis[None, None, :]
         self._position = position[block_of].ravel()
-        self._nnz = 9 * keys.size
-        column_counts = np.repeat(3 * count, 3)  # entries in each scalar column
+        self._nnz = r * r * keys.size
+        column_counts = np.repeat(r * count, r)  # entries in each scalar column
         self._indptr = np.concatenate([[0], np.cumsum(column_counts)]).astype(np.int32)
         indices = np.empty(self._nnz, dtype=np.int32)
-        indices[position.ravel()] = (3 * rows[:, None, None] + _AXIS[None, :, None] + 0 * _AXIS[None, None, :]).ravel()
+        indices[position.ravel()] = (r * rows[:, None, None] + axis[None, :, None] + 0 * axis[None, None, :]).ravel()
         self._indices = indices
         # the vertex pattern (both triangles), for ordering the blocks (posegraph.cholmod.fill_reducing_order)
         self._block_indptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
@@ -147,10 +151,10 @@ class RelativeLeastSquares:
         *,
         refinement_steps: int = 1,
     ) -> np.ndarray:
-        """The minimiser ``(n, 3, k)``; held rows equal ``held_values``.
+        """The minimiser ``(n, r, k)``; held rows equal ``held_values``.
 
-        ``held_values`` ``(n, 3, k)`` (rows of free vertices are ignored), ``transfer`` ``P_e`` and
-        ``weight`` ``W_e`` ``(m, 3, 3)``, ``weighted_offset`` ``g_e = W_e h_e`` ``(m, 3, k)`` or
+        ``held_values`` ``(n, r, k)`` (rows of free vertices are ignored), ``transfer`` ``P_e`` and
+        ``weight`` ``W_e`` ``(m, r, r)``, ``weighted_offset`` ``g_e = W_e h_e`` ``(m, r, k)`` or
         None for zero. ``refinement_steps`` steps of iterative refinement follow the first solve.
         """
         values = np.array(held_values, dtype=np.float64, copy=True)
@@ -162,7 +166,7 @@ class RelativeLeastSquares:
         weight_transfer = weight @ transfer  # W P
         solve = self._factorize(self._matrix(transfer, weight_transfer, weight))
 
-        shape = (self.num_free, 3, k)
+        shape = (self.num_free, self.block, k)
         rhs = np.zeros(shape)
         if weighted_offset is not None:
             np.add.at(rhs, var[j[free_j]], weighted_offset[free_j])
@@ -191,7 +195,7 @@ class RelativeLeastSquares:
     def _csc(self, data: np.ndarray):
         import scipy.sparse as sp
 
-        size = 3 * self.num_free
+        size = self.block * self.num_free
         return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
 
     def _factorize(self, data: np.ndarray):
@@ -221,7 +225,7 @@ class RelativeLeastSquares:
         positive definite and ``"auto"`` may fall back to SuperLU."""
         if self._cholesky is None:
             self._cholesky = cholmod_library.block_cholesky(
-                self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, 3,
+                self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, self.block,
                 threads=self.threads,
             )  # fmt: skip
         try:

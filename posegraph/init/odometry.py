@@ -20,7 +20,7 @@ single ``scipy.sparse.csgraph`` call gives the predecessor of every vertex, for 
 number of components. Poses are then composed by *pointer jumping*: each vertex stores the
 transform from an ancestor to itself, and every pass replaces ancestor ``a`` by ``a``'s ancestor
 while left-multiplying ``a``'s transform — ``⌈log₂ depth⌉`` batched 4×4 matrix products instead
-of a Python loop over vertices or tree levels.
+of a Python loop over vertices or tree levels (3×3 products for SE(2) graphs).
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
 from posegraph.init.weights import rotation_weights
-from posegraph.lie import se3
 
 __all__ = ["odometry_initialization", "spanning_tree", "TREES"]
 
@@ -68,7 +67,7 @@ def spanning_tree(graph: PoseGraph, tree: str = "bfs") -> tuple[np.ndarray, np.n
     require_usable(graph)
     n = graph.num_vertices
     held = held_vertices(graph)
-    weights = rotation_weights(graph.information)
+    weights = rotation_weights(graph.information, graph.group)
     pair_keys, pair_edge = _strongest_edge_per_pair(graph, weights)
     low, high = pair_keys // max(n, 1), pair_keys % max(n, 1)
     proper = low != high
@@ -103,7 +102,7 @@ def spanning_tree(graph: PoseGraph, tree: str = "bfs") -> tuple[np.ndarray, np.n
 
 
 def odometry_initialization(graph: PoseGraph, tree: str = "bfs") -> np.ndarray:
-    """``(n, 4, 4)`` poses composed along a spanning tree from each component's held vertices.
+    """``(n, k, k)`` poses (the graph's group) composed along a spanning tree from each component's held vertices.
 
     Held vertices (fixed, or the component's anchor) keep their file pose exactly.
     """
@@ -115,7 +114,7 @@ def odometry_initialization(graph: PoseGraph, tree: str = "bfs") -> np.ndarray:
     edge = parent_edge[child]
     forward = graph.edge_from[edge] == parent[child]
     measured = graph.measurements[edge]
-    local[child] = np.where(forward[:, None, None], measured, se3.inverse(measured))
+    local[child] = np.where(forward[:, None, None], measured, graph.group.inverse(measured))
 
     # Pointer jumping: ancestor[v] = -1 means local[v] is already the world pose.
     ancestor = parent.copy()

@@ -1,14 +1,16 @@
-"""How an edge's 6×6 information Ω (``[ω; v]`` order) weighs the initialisers' linear problems.
+"""How an edge's information Ω weighs the initialisers' linear problems.
 
 Write an edge's residual as ``e = [δ; v] = Log(Z⁻¹ Xi⁻¹ Xj)`` with cost ``½ eᵀ Ω e`` and
-blocks ``Ω = [[Ω_ωω, Ω_ωv], [Ω_vω, Ω_vv]]``.
+blocks ``Ω = [[Ω_ωω, Ω_ωv], [Ω_vω, Ω_vv]]`` — the rotation and translation blocks, taken at the
+group's ``rotation_axes`` and ``translation_axes`` (SE(3)'s ``[ω; v]``: 3 + 3; SE(2)'s
+``[v_x, v_y, ω]``: 1 + 2, the rotation block then being the scalar ``Ω_θθ``).
 
 Rotation weight (chordal relaxation)
     The chordal term of an edge is ``w ‖R_j − R_i R_z‖_F²``. With
     ``R_zᵀ R_iᵀ R_j = Exp(δ)`` and ``θ = |δ|`` it equals ``w ‖Exp(δ) − I‖_F² = 8 w sin²(θ/2)
     ≈ 2 w θ²``: it weighs every rotation axis alike. We take
 
-        ``w = tr(Ω_ωω) / 3``,
+        ``w = tr(Ω_ωω) / 3``   (in 2D: ``w = Ω_θθ``),
 
     the mean of ``uᵀ Ω_ωω u`` over unit axes ``u`` — the chordal term then equals the true
     rotational cost averaged over the direction of the error (for ``Ω_ωω = κ I`` it equals it to
@@ -21,7 +23,7 @@ Rotation weight (chordal relaxation)
 
 Translation weight
     Given the rotations, ``δ`` is known and ``v`` is affine in the translations, so the edge cost is
-    an exact quadratic in them: the full 3×3 ``Ω_vv`` (and the coupling ``Ω_vω``) is used as is,
+    an exact quadratic in them: the full ``Ω_vv`` (3×3, or 2×2 in 2D) (and the coupling ``Ω_vω``) is used as is,
     see :func:`posegraph.init.chordal.translations_given_rotations`.
 
 Floors
@@ -35,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from posegraph.lie.group import SE3, LieGroup
+
 __all__ = ["WEIGHT_FLOOR", "rotation_weights", "translation_information"]
 
 WEIGHT_FLOOR = 1e-12
@@ -42,10 +46,11 @@ WEIGHT_FLOOR = 1e-12
 that, and above double precision's 1e-16 so the Cholesky factorisation still sees a positive pivot."""
 
 
-def rotation_weights(information: np.ndarray) -> np.ndarray:
-    """Scalar chordal weights ``w = tr(Ω_ωω)/3``, floored; ``information`` ``(m,6,6)`` → ``(m,)``."""
+def rotation_weights(information: np.ndarray, group: LieGroup = SE3) -> np.ndarray:
+    """Scalar chordal weights ``w = tr(Ω_ωω)/dim ω``, floored; ``information`` ``(m,d,d)`` → ``(m,)``."""
     information = np.asarray(information, dtype=np.float64)
-    weights = np.trace(information[:, :3, :3], axis1=1, axis2=2) / 3.0
+    axes = group.rotation_block
+    weights = np.trace(information[:, axes, axes], axis1=1, axis2=2) / len(group.rotation_axes)
     if weights.size == 0:
         return weights
     largest = float(weights.max())
@@ -55,10 +60,11 @@ def rotation_weights(information: np.ndarray) -> np.ndarray:
     return np.maximum(weights, WEIGHT_FLOOR * largest)
 
 
-def translation_information(information: np.ndarray) -> np.ndarray:
-    """The ``(m,3,3)`` translational blocks ``Ω_vv``, symmetrised, eigenvalues floored."""
+def translation_information(information: np.ndarray, group: LieGroup = SE3) -> np.ndarray:
+    """The ``(m,r,r)`` translational blocks ``Ω_vv``, symmetrised, eigenvalues floored."""
     information = np.asarray(information, dtype=np.float64)
-    block = information[:, 3:, 3:]
+    axes = group.translation_block
+    block = information[:, axes, axes]
     block = 0.5 * (block + block.transpose(0, 2, 1))
     if block.shape[0] == 0:
         return block
@@ -69,7 +75,7 @@ def translation_information(information: np.ndarray) -> np.ndarray:
     bound = float(traces.max())
     if bound > 0.0 and np.isfinite(bound):
         try:
-            np.linalg.cholesky(block - (WEIGHT_FLOOR * bound) * np.eye(3))
+            np.linalg.cholesky(block - (WEIGHT_FLOOR * bound) * np.eye(len(group.translation_axes)))
             return block
         except np.linalg.LinAlgError:
             pass

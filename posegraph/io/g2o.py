@@ -1,6 +1,7 @@
-"""Read and write 3D pose graphs in g2o's text format: the public names, from the modules that own them.
+"""Read and write 3D and 2D pose graphs in g2o's text format: the public names, from the modules that own them.
 
-``VERTEX_SE3:QUAT`` / ``EDGE_SE3:QUAT`` / ``FIX`` lines and gtsam's older ``VERTEX3`` / ``EDGE3``;
+``VERTEX_SE3:QUAT`` / ``EDGE_SE3:QUAT`` / ``FIX`` lines, gtsam's older ``VERTEX3`` / ``EDGE3``, and
+2D ``VERTEX_SE2`` / ``EDGE_SE2``;
 the format, the checks (``file:line: reason`` errors), the repairs and the writer's guarantees are
 described in ``docs/g2o.md``, the one reference. The work is split by job:
 
@@ -18,7 +19,9 @@ from __future__ import annotations
 from posegraph.io.g2o_checks import (
     PSD_TOLERANCE, QUATERNION_NORM_TOLERANCE, REPAIR_EIGENVALUE_FLOOR, SINGULAR_TOLERANCE, ZERO_QUATERNION_NORM,
 )
-from posegraph.io.g2o_format import EDGE3_TAG, EDGE_TAG, FIX_TAG, G2O_TO_TANGENT, VERTEX3_TAG, VERTEX_TAG
+from posegraph.io.g2o_format import (
+    EDGE3_TAG, EDGE_SE2_TAG, EDGE_TAG, FIX_TAG, G2O_TO_TANGENT, VERTEX3_TAG, VERTEX_SE2_TAG, VERTEX_TAG,
+)
 from posegraph.io.g2o_read import read_g2o, rotations_from_roll_pitch_yaw
 from posegraph.io.g2o_write import format_g2o, write_g2o
 
@@ -30,6 +33,8 @@ __all__ = [
     "EDGE_TAG",
     "VERTEX3_TAG",
     "EDGE3_TAG",
+    "VERTEX_SE2_TAG",
+    "EDGE_SE2_TAG",
     "FIX_TAG",
     "G2O_TO_TANGENT",
     "QUATERNION_NORM_TOLERANCE",

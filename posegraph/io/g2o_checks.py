@@ -13,7 +13,7 @@ import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError
 from posegraph.graph import PoseGraph, connected_components
-from posegraph.io.g2o_format import EDGE_TAG, FIX_TAG, TWO_D_TAGS, VERTEX3_TAG, VERTEX_TAG
+from posegraph.io.g2o_format import EDGE_SE2_TAG, RECORDS, TORO_TAGS, VERTEX_SE2_TAG
 from posegraph.io.g2o_lines import Lines
 
 QUATERNION_NORM_TOLERANCE = 1e-6
@@ -39,15 +39,33 @@ def raise_first(errors: list[InputError | None]) -> None:
         raise min(found, key=lambda e: (e.line is None, e.line or 0))
 
 
-def refuse_two_d(groups: dict[str, Lines], first_line: dict[str, int], path: str) -> None:
-    two_d = sorted(TWO_D_TAGS & groups.keys(), key=lambda tag: first_line[tag])
-    if two_d:
+def space_dimension(groups: dict[str, Lines], first_line: dict[str, int], path: str) -> int:
+    """3 for a 3D file, 2 for a 2D one (by the tags of :data:`RECORDS` it holds; 3 when it holds none).
+
+    Refuses TORO's 2D tags and a file mixing 2D and 3D lines, naming the first line of the
+    dimension that comes second in the file.
+    """
+    toro = sorted(TORO_TAGS & groups.keys(), key=lambda tag: first_line[tag])
+    if toro:
         raise G2oFormatError(
-            f"{two_d[0]}: 2D pose graphs are not supported yet; posegraph reads 3D graphs "
-            f"({VERTEX_TAG} / {EDGE_TAG} / {FIX_TAG})",
+            f"{toro[0]}: the older TORO 2D tags ({', '.join(sorted(TORO_TAGS))}) are not read; posegraph reads "
+            f"g2o's 2D tags ({VERTEX_SE2_TAG} / {EDGE_SE2_TAG}) and its 3D ones",
             path,
-            first_line[two_d[0]],
+            first_line[toro[0]],
         )
+    firsts = {}  # space dimension -> (first line, tag)
+    for tag in RECORDS.keys() & groups.keys():
+        found = (first_line[tag], tag)
+        firsts[RECORDS[tag].space_dim] = min(firsts.get(RECORDS[tag].space_dim, found), found)
+    if len(firsts) < 2:
+        return next(iter(firsts), 3)
+    (first, first_tag), (second, second_tag) = sorted(firsts.values())
+    raise G2oFormatError(
+        f"{second_tag} after {first_tag} (line {first}): the file mixes 2D and 3D lines; a pose graph is "
+        "either planar (SE(2)) or spatial (SE(3))",
+        path,
+        second,
+    )
 
 
 def check_negative_ids(ids: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2oFormatError | None:
@@ -116,14 +134,14 @@ def quaternion_note(quaternions: list[np.ndarray], numbers: list[np.ndarray], pa
 def check_information(
     information: np.ndarray, numbers: np.ndarray, tags: np.ndarray, path: str, *, repair: bool
 ) -> tuple[np.ndarray, G2oFormatError | None, list[str]]:
-    """Check (and, if ``repair``, repair) the ``(m, 6, 6)`` information matrices, ``[ω; v]`` order.
+    """Check (and, if ``repair``, repair) the ``(m, d, d)`` information matrices, in tangent order.
 
     Returns the matrices, an error for the first refused one, and warning texts (repaired or
     singular matrices); see ``docs/g2o.md`` for the policy. Rows holding NaN or
     infinities are left to :func:`check_finite`.
     """
     finite = np.isfinite(information).all(axis=(1, 2))
-    checked = information if finite.all() else np.where(finite[:, None, None], information, np.eye(6))
+    checked = information if finite.all() else np.where(finite[:, None, None], information, np.eye(information.shape[-1]))
     # Fast path: Cholesky succeeds for the whole batch iff every matrix is positive definite.
     try:
         np.linalg.cholesky(checked)
@@ -181,13 +199,13 @@ def check_information(
 
 
 def _nearest_positive_definite(matrices: np.ndarray) -> np.ndarray:
-    """Symmetric ``(k, 6, 6)`` ``A = V diag(λ) Vᵀ`` to ``V diag(max(λ, f·λ_max)) Vᵀ``, f the repair floor.
+    """Symmetric ``(k, d, d)`` ``A = V diag(λ) Vᵀ`` to ``V diag(max(λ, f·λ_max)) Vᵀ``, f the repair floor.
 
     With ``f =`` :data:`REPAIR_EIGENVALUE_FLOOR`, it is the nearest symmetric matrix in Frobenius
     norm whose eigenvalues are all ``≥ f·λ_max``
     (Higham 1988, "Computing a nearest symmetric positive semidefinite matrix": clipping the
     eigenvalues; with ``f = 0`` it is the nearest positive semi-definite matrix, from which this one
-    differs by at most ``√6·f·λ_max``). The floor keeps each repaired matrix positive definite, so
+    differs by at most ``√d·f·λ_max``). The floor keeps each repaired matrix positive definite, so
     that it is a proper Gaussian on its own (Cholesky succeeds; gtsam's noise model represents it
     exactly) and leaves no direction of the edge entirely free.
     """
@@ -205,18 +223,23 @@ def topology(
     fix_ids: np.ndarray,
     fix_numbers: np.ndarray,
     path: str,
+    vertex_tags: str,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Edge endpoints as vertex indices ``(m, 2)`` and the fixed mask ``(n,)``, after the graph checks."""
+    """Edge endpoints as vertex indices ``(m, 2)`` and the fixed mask ``(n,)``, after the graph checks.
+
+    ``vertex_tags`` names the vertex tags in messages (e.g. ``"VERTEX_SE2"``)."""
     order = np.argsort(ids, kind="stable")
     sorted_ids = ids[order]
     duplicate = _check_duplicates(ids, order, vertex_numbers, path)
-    edge_index, missing = _resolve(edge_ids.reshape(-1), order, sorted_ids, np.repeat(edge_numbers, 2), "edge", path)
+    edge_index, missing = _resolve(
+        edge_ids.reshape(-1), order, sorted_ids, np.repeat(edge_numbers, 2), "edge", path, vertex_tags
+    )
     loops = np.flatnonzero(edge_ids[:, 0] == edge_ids[:, 1])
     loop = None
     if loops.size:
         e = loops[0]
         loop = GraphError(f"self-loop: the edge joins vertex {edge_ids[e, 0]} to itself", path, int(edge_numbers[e]))
-    fixed_index, fix_missing = _resolve(fix_ids, order, sorted_ids, fix_numbers, FIX_TAG, path)
+    fixed_index, fix_missing = _resolve(fix_ids, order, sorted_ids, fix_numbers, "FIX", path, vertex_tags)
     raise_first([duplicate, missing, loop, fix_missing])
     fixed = np.zeros(len(ids), dtype=bool)
     fixed[fixed_index] = True
@@ -241,7 +264,8 @@ def _check_duplicates(ids: np.ndarray, order: np.ndarray, numbers: np.ndarray, p
 
 
 def _resolve(
-    wanted: np.ndarray, order: np.ndarray, sorted_ids: np.ndarray, numbers: np.ndarray, what: str, path: str
+    wanted: np.ndarray, order: np.ndarray, sorted_ids: np.ndarray, numbers: np.ndarray, what: str, path: str,
+    vertex_tags: str,
 ) -> tuple[np.ndarray, GraphError | None]:
     """Vertex indices of ``wanted`` ids; an error naming the first line with an unknown id."""
     pos = np.clip(np.searchsorted(sorted_ids, wanted), 0, len(sorted_ids) - 1)
@@ -250,7 +274,7 @@ def _resolve(
         return order[pos], None
     k = np.flatnonzero(~found)[0]
     return np.zeros(0, np.int64), GraphError(
-        f"{what} names vertex {wanted[k]}, which has no {VERTEX_TAG} line (nor {VERTEX3_TAG})", path, int(numbers[k])
+        f"{what} names vertex {wanted[k]}, which has no {vertex_tags}", path, int(numbers[k])
     )
 
 

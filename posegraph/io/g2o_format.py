@@ -20,31 +20,45 @@ VERTEX3_TAG = "VERTEX3"
 """gtsam's older 3D vertex: ``VERTEX3 id x y z roll pitch yaw``."""
 EDGE3_TAG = "EDGE3"
 """gtsam's older 3D edge: ``EDGE3 i j x y z roll pitch yaw`` and 21 information entries in ``[ω; v]`` order."""
-# 2D tags of g2o and of the older TORO/gtsam formats: refused, not skipped,
-# because skipping them would silently leave an empty or partial graph.
-TWO_D_TAGS = frozenset({"VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2"})
+VERTEX_SE2_TAG = "VERTEX_SE2"
+"""g2o's 2D vertex: ``VERTEX_SE2 id x y θ``."""
+EDGE_SE2_TAG = "EDGE_SE2"
+"""g2o's 2D edge: ``EDGE_SE2 i j dx dy dθ`` and 6 information entries in ``[x, y, θ]`` order."""
+# The older TORO 2D tags: refused, not skipped, because skipping them would silently leave an
+# empty or partial graph.
+TORO_TAGS = frozenset({"VERTEX2", "EDGE2"})
 
 G2O_TO_TANGENT = np.array([3, 4, 5, 0, 1, 2])
 """Index permutation from g2o's ``[t; R]`` order to ``[ω; v]`` (its own inverse)."""
 
 UPPER_ROWS, UPPER_COLS = np.triu_indices(6)
 """Row and column of each of the 21 upper-triangular information entries, in the file's order (row by row)."""
+UPPER_ROWS_2D, UPPER_COLS_2D = np.triu_indices(3)
+"""The same for the 6 entries of a 2D edge's 3×3 information."""
 
 
-def _entry_of_upper() -> np.ndarray:
-    """``(6, 6)``: which of the 21 upper-triangular entries (row by row) each element of the symmetric matrix is."""
-    entry = np.empty((6, 6), dtype=np.int64)
-    entry[UPPER_ROWS, UPPER_COLS] = np.arange(21)
-    entry[UPPER_COLS, UPPER_ROWS] = np.arange(21)
+def _entry_of_upper(size: int) -> np.ndarray:
+    """``(size, size)``: which upper-triangular entry (row by row) each element of the symmetric matrix is."""
+    rows, cols = np.triu_indices(size)
+    entry = np.empty((size, size), dtype=np.int64)
+    entry[rows, cols] = np.arange(rows.size)
+    entry[cols, rows] = np.arange(rows.size)
     return entry
 
 
 # (36,) indices into the 21 entries giving the 6×6 matrix row-major: permuted from g2o's [t; R]
 # to [ω; v] (EDGE_SE3:QUAT), or as is (EDGE3, whose entries gtsam reads in its own [ω; v] order).
-TANGENT_FROM_UPPER = _entry_of_upper()[G2O_TO_TANGENT][:, G2O_TO_TANGENT].reshape(-1)
-SYMMETRIC_FROM_UPPER = _entry_of_upper().reshape(-1)
+TANGENT_FROM_UPPER = _entry_of_upper(6)[G2O_TO_TANGENT][:, G2O_TO_TANGENT].reshape(-1)
+SYMMETRIC_FROM_UPPER = _entry_of_upper(6).reshape(-1)
+# (9,) the same for EDGE_SE2: g2o's [x, y, θ] is already the se(2) tangent order, nothing to permute.
+SYMMETRIC_FROM_UPPER_2D = _entry_of_upper(3).reshape(-1)
 
-_INFORMATION_FIELDS = tuple(f"information({r + 1},{c + 1})" for r, c in zip(UPPER_ROWS, UPPER_COLS))
+
+def _information_fields(size: int) -> tuple[str, ...]:
+    return tuple(f"information({r + 1},{c + 1})" for r, c in zip(*np.triu_indices(size)))
+
+
+_INFORMATION_FIELDS = _information_fields(6)
 
 
 class Record(NamedTuple):
@@ -60,9 +74,12 @@ class Record(NamedTuple):
     n_ints: int
     """How many leading fields are integer ids (1 for a vertex, 2 for an edge)."""
     rotation: str
-    """``"quaternion"`` (field ``q``: ``qx qy qz qw``) or ``"euler"`` (field ``rpy``: roll pitch yaw, radians)."""
+    """``"quaternion"`` (field ``q``: ``qx qy qz qw``), ``"euler"`` (field ``rpy``: roll pitch yaw,
+    radians) or ``"angle"`` (field ``theta``: the planar angle, radians)."""
     information_from_upper: np.ndarray | None = None
-    """Edges: ``(36,)`` indices into the 21 entries giving the ``[ω; v]`` matrix, row-major."""
+    """Edges: ``(d², )`` indices into the upper-triangular entries giving the tangent-order matrix, row-major."""
+    space_dim: int = 3
+    """3 for the 3D tags (SE(3)), 2 for the planar ones (SE(2)); a file holds tags of one only."""
 
 
 RECORDS = {
@@ -88,8 +105,30 @@ RECORDS = {
         ("id_from", "id_to", "x", "y", "z", "roll", "pitch", "yaw") + _INFORMATION_FIELDS, 2, "euler",
         SYMMETRIC_FROM_UPPER,
     ),
+    VERTEX_SE2_TAG: Record(
+        "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
+        ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
+    ),
+    EDGE_SE2_TAG: Record(
+        "edge",
+        np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64),
+                  ("info", np.float64, (6,))]),
+        ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle",
+        SYMMETRIC_FROM_UPPER_2D, space_dim=2,
+    ),
 }
 """The vertex and edge tags read, in the order their checks run (vertices before edges)."""
 
+PRIMARY_EDGE_TAG = {3: EDGE_TAG, 2: EDGE_SE2_TAG}
+"""The edge tag the writer writes per space dimension (and whose lines it copies when unchanged)."""
+PRIMARY_VERTEX_TAG = {3: VERTEX_TAG, 2: VERTEX_SE2_TAG}
+"""The vertex tag the writer writes per space dimension."""
+
+
+def records_of(space_dim: int) -> dict[str, Record]:
+    """The entries of :data:`RECORDS` for 3D (``space_dim=3``) or 2D (``2``) files, in order."""
+    return {tag: record for tag, record in RECORDS.items() if record.space_dim == space_dim}
+
+
 READ_TAGS = frozenset(RECORDS) | {FIX_TAG}
-"""Every tag the reader reads; lines with other tags are skipped with a warning (2D tags refused)."""
+"""Every tag the reader reads; lines with other tags are skipped with a warning (TORO's 2D tags refused)."""

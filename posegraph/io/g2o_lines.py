@@ -115,8 +115,9 @@ def _diagnose_line(
 
 
 def _describe_fields(fields: tuple[str, ...]) -> str:
-    if len(fields) > 12:  # the edge's 21 information entries come last
-        return " ".join(fields[: len(fields) - 21]) + " and the 21 upper-triangular information entries"
+    entries = sum(name.startswith("information(") for name in fields)
+    if entries > 6:  # a 3D edge's 21 information entries come last
+        return " ".join(fields[: len(fields) - entries]) + f" and the {entries} upper-triangular information entries"
     return " ".join(fields)
 
 

@@ -22,20 +22,24 @@ from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarnin
 from posegraph.graph import EdgeSource, PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
-    refuse_two_d, topology, unit_quaternions,
+    space_dimension, topology, unit_quaternions,
 )
-from posegraph.io.g2o_format import EDGE3_TAG, EDGE_TAG, FIX_TAG, READ_TAGS, RECORDS, VERTEX3_TAG, VERTEX_TAG
+from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.text_input import read_text
-from posegraph.lie import so3
+from posegraph.lie import so2, so3
+from posegraph.lie.group import SE2, SE3
+
+_GROUP = {3: SE3, 2: SE2}
+"""The group of a file's poses by its space dimension (3D or 2D tags)."""
 
 
 class _Poses(NamedTuple):
     """Vertices of every vertex tag, in file order."""
 
     ids: np.ndarray  # (n,) int64
-    rotations: np.ndarray  # (n, 3, 3)
-    translations: np.ndarray  # (n, 3)
+    rotations: np.ndarray  # (n, r, r), r = 3 (3D) or 2 (2D)
+    translations: np.ndarray  # (n, r)
     numbers: np.ndarray  # (n,) 1-based line numbers
 
 
@@ -43,9 +47,9 @@ class _Measurements(NamedTuple):
     """Edges of every edge tag, in file order."""
 
     ids: np.ndarray  # (m, 2) int64 vertex ids
-    rotations: np.ndarray  # (m, 3, 3)
-    translations: np.ndarray  # (m, 3)
-    information: np.ndarray  # (m, 6, 6) in [ω; v] order
+    rotations: np.ndarray  # (m, r, r)
+    translations: np.ndarray  # (m, r)
+    information: np.ndarray  # (m, d, d) in tangent order ([ω; v] for SE(3), [v_x, v_y, ω] for SE(2))
     numbers: np.ndarray  # (m,) 1-based line numbers
     tags: np.ndarray  # (m,) the tag of each line (for messages)
 
@@ -60,16 +64,16 @@ class _Fix(NamedTuple):
 def read_g2o(
     path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False
 ) -> PoseGraph:
-    """Read a 3D pose graph from a g2o file.
+    """Read a 3D or 2D pose graph from a g2o file.
 
     Parameters
     ----------
     path:
-        The ``.g2o`` file (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT`` and ``FIX``
-        lines, and gtsam's older ``VERTEX3`` / ``EDGE3``; see ``docs/g2o.md``
-        for the format and the checks), plain or gzip/bzip2/xz-compressed
-        (:func:`posegraph.io.text_input.read_text`); ``"-"`` reads standard input
-        (messages then name ``<stdin>``).
+        The ``.g2o`` file: 3D (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, gtsam's older ``VERTEX3`` /
+        ``EDGE3``) or 2D (``VERTEX_SE2``, ``EDGE_SE2``), with ``FIX`` lines; see ``docs/g2o.md``
+        for the format and the checks. Plain or gzip/bzip2/xz-compressed
+        (:func:`posegraph.io.text_input.read_text`). A file mixing 2D and 3D lines is refused.
+        ``"-"`` reads standard input (messages then name ``<stdin>``).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
         file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
@@ -92,7 +96,9 @@ def read_g2o(
         (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
         ``gtsam.readG2o`` does), ``fixed (n,)``, ``source`` (the absolute
         path read), ``edge_lines (m,)`` (each edge's line in the file) and
-        ``group`` :data:`~posegraph.lie.group.SE3`.
+        ``group`` SE(3). For a 2D file, ``group`` is
+        :data:`~posegraph.lie.group.SE2`, poses and measurements are ``(·,3,3)`` and the
+        information ``(m,3,3)`` in ``[x, y, θ]`` order (g2o's and se(2)'s, unpermuted).
 
     Raises
     ------
@@ -125,20 +131,24 @@ def read_g2o(
 def _parse(text: str, path: str, source: str | None, require_edges: bool, repair_information: bool) -> PoseGraph:
     groups, first_line = group_lines(text)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
-    lines = {tag: groups.get(tag, empty) for tag in RECORDS}
     skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS}
     # Stage 1: the format of each line.
-    refuse_two_d(groups, first_line, path)
-    records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, path)
+    space_dim = space_dimension(groups, first_line, path)
+    table = records_of(space_dim)
+    lines = {tag: groups.get(tag, empty) for tag in table}
+    records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
     notes = _skipped_note(skipped, first_line, path)
     # Stage 2: the values.
-    vertices, edges, information, value_notes = _values(records, lines, path, repair_information)
+    vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)
     notes += value_notes
     # Stage 3: an empty graph.
-    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, first_line, require_edges, path)
+    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, first_line, require_edges, table, path)
     notes += empty_notes
     # Stage 4: the graph.
-    edge_index, fixed = topology(vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path)
+    edge_index, fixed = topology(
+        vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path,
+        _tag_names(table, "vertex", "line"),
+    )  # fmt: skip
     graph = PoseGraph(
         ids=vertices.ids.copy(),
         poses=_matrices(vertices.rotations, vertices.translations),
@@ -149,11 +159,13 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         fixed=fixed,
         source=source,
         edge_lines=edges.numbers.copy(),
+        group=_GROUP[space_dim],
     )
-    if len(edges.ids) and len(edges.ids) == len(lines[EDGE_TAG].rests) and information is edges.information:
-        # Every edge is an EDGE_SE3:QUAT line and none was repaired (a repair returns a copy): the
-        # lines state the edges exactly, and the writer copies them (EdgeSource).
-        graph = replace(graph, edge_source=EdgeSource.of(graph, EDGE_TAG, lines[EDGE_TAG].rests))
+    edge_tag = PRIMARY_EDGE_TAG[space_dim]
+    if len(edges.ids) and len(edges.ids) == len(lines[edge_tag].rests) and information is edges.information:
+        # Every edge is an EDGE_SE3:QUAT (EDGE_SE2) line and none was repaired (a repair returns a
+        # copy): the lines state the edges exactly, and the writer copies them (EdgeSource).
+        graph = replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines[edge_tag].rests))
     if graph.num_edges:
         notes += components_note(graph, path)
     for note in notes:
@@ -161,12 +173,20 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
     return graph
 
 
-def _parse_lines(fix_lines: Lines, lines: dict[str, Lines], path: str) -> tuple[dict[str, np.ndarray], _Fix]:
-    """Stage 1: every vertex and edge tag's records (:data:`RECORDS`) and the ``FIX`` ids; the
-    first malformed line or negative vertex id raised."""
+def _tag_names(table: dict[str, Record], kind: str, noun: str) -> str:
+    """``"VERTEX_SE3:QUAT lines (nor VERTEX3)"`` or ``"VERTEX_SE2 lines"``: the tags of one kind, for messages."""
+    tags = [tag for tag, record in table.items() if record.kind == kind]
+    return f"{tags[0]} {noun}" + (f" (nor {', '.join(tags[1:])})" if len(tags) > 1 else "")
+
+
+def _parse_lines(
+    fix_lines: Lines, lines: dict[str, Lines], table: dict[str, Record], path: str
+) -> tuple[dict[str, np.ndarray], _Fix]:
+    """Stage 1: every vertex and edge tag's records (``table``, of :data:`RECORDS`) and the ``FIX``
+    ids; the first malformed line or negative vertex id raised."""
     records: dict[str, np.ndarray] = {}
     errors: list[InputError | None] = []
-    for tag, record in RECORDS.items():
+    for tag, record in table.items():
         records[tag], error = parse_records(lines[tag], tag, record, path)
         errors.append(error)
         if error is None and record.n_ints == 1:
@@ -186,64 +206,74 @@ def _skipped_note(skipped: dict[str, int], first_line: dict[str, int], path: str
     return [f"{path}:{first}: skipped {count} line(s) with tags posegraph does not read: {listing}"]
 
 
-def _values(records: dict[str, np.ndarray], lines: dict[str, Lines], path: str, repair_information: bool):
-    """Stage 2: ``(vertices, edges, information (m,6,6), warning texts)``, the first bad value raised.
+def _values(
+    records: dict[str, np.ndarray], lines: dict[str, Lines], table: dict[str, Record], path: str,
+    repair_information: bool,
+):  # fmt: skip
+    """Stage 2: ``(vertices, edges, information (m,d,d), warning texts)``, the first bad value raised.
 
-    Quaternions are normalised (a zero one is an error), Euler angles turned into matrices, the
-    information matrices checked (and repaired if asked), every number checked to be finite.
+    Quaternions are normalised (a zero one is an error), Euler and planar angles turned into
+    matrices, the information matrices checked (and repaired if asked), every number checked to be finite.
     """
     rotations: dict[str, np.ndarray] = {}
     zero_errors: list[InputError | None] = []
-    quaternion_tags = [tag for tag, record in RECORDS.items() if record.rotation == "quaternion"]
-    for tag, record in RECORDS.items():
+    quaternion_tags = [tag for tag, record in table.items() if record.rotation == "quaternion"]
+    for tag, record in table.items():
         if record.rotation == "quaternion":
             q, error = unit_quaternions(records[tag]["q"], lines[tag].numbers, tag, path)
             rotations[tag] = _rotations_or_identity(q)
             zero_errors.append(error)
+        elif record.rotation == "angle":
+            with np.errstate(invalid="ignore"):  # infinite angles are reported by check_finite
+                rotations[tag] = so2.from_angle(records[tag]["theta"])
         else:
             rotations[tag] = _euler_rotations(records[tag]["rpy"])
-    vertices = _merge_vertices(records, lines, rotations)
-    edges = _merge_edges(records, lines, rotations)
+    vertices = _merge_vertices(records, lines, rotations, table)
+    edges = _merge_edges(records, lines, rotations, table)
     information, info_error, info_notes = check_information(
         edges.information, edges.numbers, edges.tags, path, repair=repair_information
     )
     finite = [
-        check_finite(records[tag], lines[tag].numbers, tag, record.fields, path) for tag, record in RECORDS.items()
+        check_finite(records[tag], lines[tag].numbers, tag, record.fields, path) for tag, record in table.items()
     ]
     raise_first(finite + zero_errors + [info_error])
     notes = quaternion_note(
         [records[tag]["q"] for tag in quaternion_tags], [lines[tag].numbers for tag in quaternion_tags], path
-    )
+    ) if quaternion_tags else []
     return vertices, edges, information, notes + info_notes
 
 
 def _vertices_or_refusal(
     vertices: _Poses, edges: _Measurements, skipped: dict[str, int], first_line: dict[str, int], require_edges: bool,
-    path: str,
-) -> tuple[_Poses, list[str]]:
+    table: dict[str, Record], path: str,
+) -> tuple[_Poses, list[str]]:  # fmt: skip
     """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
 
     A file with no pose-graph line at all is described by its first line with data and at most
     three more of its tags (``skipped`` keeps the tags in the order they first occur), not by
     every word of a text file.
     """
+    vertex_tags, edge_tags = _tag_names(table, "vertex", "lines"), _tag_names(table, "edge", "lines")
     if len(vertices.ids) == 0:
         if len(edges.ids) == 0:
+            vertex_list = [tag for tag, record in RECORDS.items() if record.kind == "vertex"]
             raise GraphError(
-                f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}, nor edges): there is no 3D pose graph "
-                f"to read{_first_unread_line(skipped, first_line)}",
+                f"the file has no {vertex_list[0]} lines (nor {', '.join(vertex_list[1:])}, nor edges): there is no "
+                f"pose graph to read{_first_unread_line(skipped, first_line)}",
                 path,
             )
         if not require_edges:
             raise GraphError(
-                f"the file has no {VERTEX_TAG} lines (nor {VERTEX3_TAG}): its {len(edges.ids)} edge(s) name "
-                "vertices but it gives no poses to read",
+                f"the file has no {vertex_tags}: its {len(edges.ids)} edge(s) name vertices but it gives no poses "
+                "to read",
                 path,
             )
         vertices, note = _vertices_named_by_edges(edges, path)
         return vertices, [note]
     if len(edges.ids) == 0 and require_edges:
-        raise GraphError(f"the file has no {EDGE_TAG} lines (nor {EDGE3_TAG}): there is nothing to optimise", path)
+        raise GraphError(
+            f"the file has no {edge_tags}: there is nothing to optimise", path
+        )
     return vertices, []
 
 
@@ -272,8 +302,8 @@ def _rotations_or_identity(q: np.ndarray) -> np.ndarray:
     return so3.from_quaternion(q if usable.all() else np.where(usable[:, None], q, [0.0, 0.0, 0.0, 1.0]))
 
 
-def _tags_of(kind: str) -> list[str]:
-    return [tag for tag, record in RECORDS.items() if record.kind == kind]
+def _tags_of(kind: str, table: dict[str, Record]) -> list[str]:
+    return [tag for tag, record in table.items() if record.kind == kind]
 
 
 def _in_file_order(parts, tags: list[str], records: dict[str, np.ndarray]):
@@ -285,10 +315,11 @@ def _in_file_order(parts, tags: list[str], records: dict[str, np.ndarray]):
 
 
 def _merge_vertices(
-    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]
-) -> _Poses:
-    """The vertices of every vertex tag (``VERTEX_SE3:QUAT``, ``VERTEX3``) together, in file order."""
-    tags = _tags_of("vertex")
+    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray],
+    table: dict[str, Record],
+) -> _Poses:  # fmt: skip
+    """The vertices of every vertex tag of ``table`` (``VERTEX_SE3:QUAT``, ``VERTEX3``) together, in file order."""
+    tags = _tags_of("vertex", table)
     parts = _Poses(
         ids=np.concatenate([records[tag]["id"] for tag in tags]),
         rotations=np.concatenate([rotations[tag] for tag in tags]),
@@ -299,21 +330,23 @@ def _merge_vertices(
 
 
 def _merge_edges(
-    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray]
-) -> _Measurements:
-    """The edges of every edge tag together, in file order, information in ``[ω; v]`` order.
+    records: dict[str, np.ndarray], lines: dict[str, Lines], rotations: dict[str, np.ndarray],
+    table: dict[str, Record],
+) -> _Measurements:  # fmt: skip
+    """The edges of every edge tag of ``table`` together, in file order, information in tangent order.
 
-    g2o's ``EDGE_SE3:QUAT`` information is ``[t; R]`` and is permuted; gtsam reads ``EDGE3``'s 21
-    entries as the upper triangle of its own ``[ω; v]`` matrix, unpermuted, and so do we
-    (``Record.information_from_upper``).
+    g2o's ``EDGE_SE3:QUAT`` information is ``[t; R]`` and is permuted to ``[ω; v]``; gtsam reads
+    ``EDGE3``'s 21 entries as the upper triangle of its own ``[ω; v]`` matrix, unpermuted, and so
+    do we; ``EDGE_SE2``'s ``[x, y, θ]`` is se(2)'s order already (``Record.information_from_upper``).
     """
-    tags = _tags_of("edge")
+    tags = _tags_of("edge", table)
+    d = _GROUP[next(iter(table.values())).space_dim].dim  # 6 (SE(3)) or 3 (SE(2))
     parts = _Measurements(
         ids=np.concatenate([records[tag]["ids"] for tag in tags]),
         rotations=np.concatenate([rotations[tag] for tag in tags]),
         translations=np.concatenate([records[tag]["t"] for tag in tags]),
         information=np.concatenate(
-            [records[tag]["info"][:, RECORDS[tag].information_from_upper].reshape(-1, 6, 6) for tag in tags]
+            [records[tag]["info"][:, table[tag].information_from_upper].reshape(-1, d, d) for tag in tags]
         ),
         numbers=np.concatenate([lines[tag].numbers for tag in tags]),
         tags=np.array([tag for tag in tags for _ in range(len(records[tag]))], dtype=object),
@@ -362,11 +395,11 @@ def _vertices_named_by_edges(edges: _Measurements, path: str) -> tuple[_Poses, s
             int(edges.numbers[e]),
         )
     ids = np.unique(edges.ids)
-    n = len(ids)
+    n, r = len(ids), edges.translations.shape[1]
     vertices = _Poses(
         ids=ids,
-        rotations=np.broadcast_to(np.eye(3), (n, 3, 3)),
-        translations=np.zeros((n, 3)),
+        rotations=np.broadcast_to(np.eye(r), (n, r, r)),
+        translations=np.zeros((n, r)),
         numbers=np.zeros(n, dtype=np.int64),  # no line: duplicates are impossible
     )
     note = (
@@ -378,8 +411,10 @@ def _vertices_named_by_edges(edges: _Measurements, path: str) -> tuple[_Poses, s
 
 
 def _matrices(rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(translations), 4, 4))
-    out[:, :3, :3] = rotations
-    out[:, :3, 3] = translations
-    out[:, 3, 3] = 1.0
+    """``(k, r+1, r+1)`` homogeneous matrices from ``rotations (k, r, r)`` and ``translations (k, r)``."""
+    r = translations.shape[1]
+    out = np.zeros((len(translations), r + 1, r + 1))
+    out[:, :r, :r] = rotations
+    out[:, :r, r] = translations
+    out[:, r, r] = 1.0
     return out

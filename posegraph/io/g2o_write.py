@@ -16,47 +16,65 @@ import numpy as np
 from posegraph.atomic import atomic_path
 from posegraph.errors import OutputError
 from posegraph.graph import PoseGraph
-from posegraph.io.g2o_format import EDGE_TAG, FIX_TAG, G2O_TO_TANGENT, UPPER_COLS, UPPER_ROWS, VERTEX_TAG
-from posegraph.lie import so3
+from posegraph.io.g2o_format import (
+    FIX_TAG, G2O_TO_TANGENT, PRIMARY_EDGE_TAG, UPPER_COLS, UPPER_COLS_2D, UPPER_ROWS,
+    UPPER_ROWS_2D, VERTEX_SE2_TAG, VERTEX_TAG,
+)
+from posegraph.lie import se2, so3
 
 
 def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
-    """The g2o text of ``graph`` with vertex poses ``poses (n,4,4)`` (default ``graph.poses``).
+    """The g2o text of ``graph`` with vertex poses ``poses (n,k,k)`` (default ``graph.poses``).
 
     Vertices in the graph's order with their ids, one ``FIX id`` line per fixed
-    vertex, then the edges with the information permuted back to g2o's
-    ``[t; R]`` order (upper triangle, row by row). Quaternions are
-    ``qx qy qz qw`` with ``qw ≥ 0``; floats are written with ``repr``, the
-    shortest decimal that reads back to the same double.
+    vertex, then the edges. 3D graphs (``k = 4``) as ``VERTEX_SE3:QUAT`` / ``EDGE_SE3:QUAT``: the
+    information permuted back to g2o's ``[t; R]`` order (upper triangle, row by row), quaternions
+    ``qx qy qz qw`` with ``qw ≥ 0``. 2D graphs (SE(2), ``k = 3``) as ``VERTEX_SE2 id x y θ`` /
+    ``EDGE_SE2 i j dx dy dθ`` and the 6 upper-triangular entries in ``[x, y, θ]`` order (the
+    tangent order, unpermuted), ``θ = atan2`` of the rotation in ``[−π, π]``, as gtsam's
+    ``writeG2o`` writes ``Pose2.theta()``. Floats are written with ``repr``, the shortest decimal
+    that reads back to the same double.
 
-    Edges read from ``EDGE_SE3:QUAT`` lines and unchanged since (``graph.edge_source``, see
-    :class:`posegraph.graph.EdgeSource`) are written as they were read, trailing blanks and
-    comments dropped: their numbers read back to the same edges either way.
+    Edges read from ``EDGE_SE3:QUAT`` (``EDGE_SE2``) lines and unchanged since
+    (``graph.edge_source``, see :class:`posegraph.graph.EdgeSource`) are written as they were
+    read, trailing blanks and comments dropped: their numbers read back to the same edges either way.
     """
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
-    if poses.shape != (graph.num_vertices, 4, 4):
-        raise ValueError(f"poses must have shape {(graph.num_vertices, 4, 4)}, got {poses.shape}")
-    vertex_values = np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)
-    vertex_line = VERTEX_TAG + " %d" + " %r" * 7 + "\n"
+    k = graph.group.matrix_size
+    if poses.shape != (graph.num_vertices, k, k):
+        raise ValueError(f"poses must have shape {(graph.num_vertices, k, k)}, got {poses.shape}")
+    planar = k == 3
+    vertex_tag = VERTEX_SE2_TAG if planar else VERTEX_TAG
+    vertex_values = _pose_values(poses, planar)
+    vertex_line = vertex_tag + " %d" + " %r" * vertex_values.shape[1] + "\n"
     parts = [vertex_line % (i, *v) for i, v in zip(graph.ids.tolist(), vertex_values.tolist())]
     parts += [f"{FIX_TAG} {i}\n" for i in graph.ids[graph.fixed].tolist()]
+    edge_tag = PRIMARY_EDGE_TAG[k - 1]
     source = graph.edge_source
-    if source is not None and source.format == EDGE_TAG and source.matches(graph):
-        parts.append(_copied_lines(EDGE_TAG, source.lines))
+    if source is not None and source.format == edge_tag and source.matches(graph):
+        parts.append(_copied_lines(edge_tag, source.lines))
         return "".join(parts)
-    measurement_values = np.concatenate(
-        [graph.measurements[:, :3, 3], so3.to_quaternion(graph.measurements[:, :3, :3])], axis=1
-    )
-    g2o_information = graph.information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT]
-    edge_line = EDGE_TAG + " %d %d" + " %r" * 7 + "%s\n"
+    measurement_values = _pose_values(graph.measurements, planar)
+    if planar:
+        upper = graph.information[:, UPPER_ROWS_2D, UPPER_COLS_2D]
+    else:
+        upper = graph.information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT][:, UPPER_ROWS, UPPER_COLS]
+    edge_line = edge_tag + " %d %d" + " %r" * measurement_values.shape[1] + "%s\n"
     ends = zip(
         graph.ids[graph.edge_from].tolist(),
         graph.ids[graph.edge_to].tolist(),
         measurement_values.tolist(),
-        _information_texts(g2o_information[:, UPPER_ROWS, UPPER_COLS]),
+        _information_texts(upper),
     )
     parts += [edge_line % (i, j, *v, information) for i, j, v, information in ends]
     return "".join(parts)
+
+
+def _pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:
+    """``(k, 3)`` ``x y θ`` of SE(2) matrices, or ``(k, 7)`` ``x y z qx qy qz qw`` of SE(3) ones."""
+    if planar:
+        return se2.to_xytheta(poses)
+    return np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)
 
 
 def _copied_lines(tag: str, lines: list) -> str:
@@ -71,7 +89,7 @@ def _copied_lines(tag: str, lines: list) -> str:
 
 
 def _information_texts(upper: np.ndarray) -> list[str]:
-    """Per edge, its 21 information entries ``upper (m, 21)`` as text, each preceded by a space.
+    """Per edge, its information entries ``upper (m, 21)`` (2D: ``(m, 6)``) as text, each preceded by a space.
 
     Formatting floats is most of the writer's time, and information matrices repeat: all edges of
     torus3D and of the grids carry the same one, and on sphere2500 and parking-garage the 104k and
@@ -98,7 +116,7 @@ def write_g2o(
     *,
     overwrite_input: bool = False,
 ) -> None:
-    """Write ``graph`` with vertex poses ``poses (n,4,4)`` (default ``graph.poses``) to a g2o file.
+    """Write ``graph`` with vertex poses ``poses (n,k,k)`` (default ``graph.poses``) to a g2o file.
 
     The text (see :func:`format_g2o`) is written to a temporary file in the
     target's folder, flushed to disk, then renamed over ``path``: on any

@@ -1,9 +1,10 @@
 """One small interface to a matrix Lie group, so that the solver is written once for all of them.
 
-A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`
-for :data:`SE3`; :mod:`posegraph.lie.se2` has the same function names) with the two sizes the
+A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`,
+:mod:`posegraph.lie.se2`; a ``sim3`` module with the same function names later) with the two sizes the
 solver needs: the tangent dimension (the block size of the normal equations) and the size of the
-matrices that represent the elements. Conventions are the project's (``docs/architecture.md``):
+matrices that represent the elements; and, for the initialisers, where the rotation and the
+translation sit in the tangent and the rotation group's module. Conventions are the project's (``docs/architecture.md``):
 right perturbations ``X ⊕ δ = X·Exp(δ)``, ``Y ⊖ X = Log(X⁻¹Y)``, right Jacobians, tangent order as
 gtsam's. Every callable takes any leading batch shape.
 
@@ -20,14 +21,14 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Callable
 
-from posegraph.lie import se3
+from posegraph.lie import se2, se3, so2, so3
 
-__all__ = ["LieGroup", "SE3"]
+__all__ = ["LieGroup", "SE3", "SE2"]
 
 
 @dataclass(frozen=True)
 class LieGroup:
-    """A matrix Lie group as the solver sees it: two sizes and eight batched functions."""
+    """A matrix Lie group as the solver and the initialisers see it: sizes, axes and batched functions."""
 
     name: str
     """Short name, e.g. ``"SE3"``."""
@@ -51,9 +52,38 @@ class LieGroup:
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)``, ``Exp(ξ + δ) ≈ Exp(ξ)·Exp(Jr(ξ) δ)``."""
     right_jacobian_inverse: Callable
     """``(…, d) -> (…, d, d)``: ``Jr(ξ)⁻¹``, the Jacobian of ``Log`` under right perturbations."""
+    left_jacobian_inverse: Callable | None = None
+    """``(…, d) -> (…, d, d)``: ``Jl(ξ)⁻¹`` (the solver does not need it); at ``ξ = [ω; 0]`` its translation block is ``V(ω)⁻¹``,
+    which maps a pose's translation to the translation part of its ``Log`` (the chordal start uses it)."""
+    rotation_axes: tuple = ()
+    """Tangent indices of the rotation part (``(0, 1, 2)`` of SE(3)'s ``[ω; v]``, ``(2,)`` of SE(2)'s
+    ``[v_x, v_y, ω]``); the initialisers weigh rotations and translations by these blocks of Ω."""
+    translation_axes: tuple = ()
+    """Tangent indices of the translation part (``(3, 4, 5)`` for SE(3), ``(0, 1)`` for SE(2))."""
+    rotations: ModuleType | None = None
+    """The rotation group's module (:mod:`posegraph.lie.so3`, :mod:`posegraph.lie.so2`): ``log``,
+    ``project`` of the ``(…, r, r)`` rotation blocks, ``r = matrix_size − 1``."""
+
+    @property
+    def rotation_block(self) -> slice:
+        """``rotation_axes`` as a slice (they are contiguous in every group here), for views of Ω's blocks."""
+        return slice(self.rotation_axes[0], self.rotation_axes[-1] + 1)
+
+    @property
+    def translation_block(self) -> slice:
+        """``translation_axes`` as a slice."""
+        return slice(self.translation_axes[0], self.translation_axes[-1] + 1)
+
+    @property
+    def space_dim(self) -> int:
+        """``r = matrix_size − 1``: the dimension of the space the poses act on (3 or 2)."""
+        return self.matrix_size - 1
 
     @classmethod
-    def of(cls, name: str, module: ModuleType, dim: int, matrix_size: int) -> "LieGroup":
+    def of(
+        cls, name: str, module: ModuleType, dim: int, matrix_size: int, *,
+        rotation_axes: tuple = (), translation_axes: tuple = (), rotations: ModuleType | None = None,
+    ) -> "LieGroup":  # fmt: skip
         """The group whose functions are those of ``module`` (named as in :mod:`posegraph.lie.se3`).
 
         Each callable looks its function up in ``module`` when called, so the group always runs
@@ -61,7 +91,10 @@ class LieGroup:
         by the solver's Jacobians too); the lookup costs ~0.1 µs per batched call.
         """
         functions = {f: _forward(module, f) for f in _FUNCTIONS}
-        return cls(name=name, dim=dim, matrix_size=matrix_size, **functions)
+        return cls(
+            name=name, dim=dim, matrix_size=matrix_size, **functions,
+            rotation_axes=tuple(rotation_axes), translation_axes=tuple(translation_axes), rotations=rotations,
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         return f"LieGroup({self.name}, dim={self.dim}, matrix_size={self.matrix_size})"
@@ -78,7 +111,12 @@ def _forward(module: ModuleType, name: str) -> Callable:
     return call
 
 
-_FUNCTIONS = ("exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse")
+_FUNCTIONS = (
+    "exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse",
+    "left_jacobian_inverse",
+)
 
-SE3 = LieGroup.of("SE3", se3, dim=6, matrix_size=4)
+SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3, 4, 5), rotations=so3)
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
+SE2 = LieGroup.of("SE2", se2, 3, 3, rotation_axes=(2,), translation_axes=(0, 1), rotations=so2)
+"""Rigid motions in the plane: ``(…, 3, 3)`` matrices, tangent ``[v_x, v_y, ω]``."""

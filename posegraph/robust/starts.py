@@ -29,7 +29,7 @@ __all__ = ["inlier_chain_start", "downweighted_chordal_start", "robust_chordal_s
 
 
 def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
-    """``(m,)`` squared whitened residuals ``s = eᵀΩe`` of every edge at ``poses`` ``(n, 4, 4)``."""
+    """``(m,)`` squared whitened residuals ``s = eᵀΩe`` of every edge at ``poses`` ``(n, k, k)``."""
     from posegraph.solve.residuals import edge_residuals
 
     e = edge_residuals(poses, graph)
@@ -102,7 +102,7 @@ def robust_chordal_start(
         solves.chordal(np.ones(graph.num_edges)),
         known,
         params,
-        dimension=graph.group.dim,
+        dimension=graph.group.dim,  # the χ² thresholds: 6 for SE(3), 3 for SE(2)
         progress=progress,
         start_solved=True,
     )

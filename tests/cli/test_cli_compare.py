@@ -49,5 +49,5 @@ def test_disagreement_exits_1(shared_dataset):
 
 def test_compare_on_malformed_input(tmp_path):
     bad = tmp_path / "bad.g2o"
-    bad.write_text("EDGE_SE2 0 1 0 0 0 1 0 0 1 0 1\n")
+    bad.write_text("EDGE_SE2 0 1 0 0 0 1 0 0 1 0\n")  # one information entry short
     assert_one_error_line(run_cli("compare", bad), f"{bad}:1:")

@@ -1,10 +1,11 @@
 """Small pose graphs with a known truth for the initialisation tests.
 
-Every builder returns ``(graph, truth)``: ``truth`` ``(n, 4, 4)`` are the poses the measurements
+Every builder returns ``(graph, truth)``: ``truth`` ``(n, k, k)`` are the poses the measurements
 were generated from. File poses are deliberately wrong (the truth seen through a per-component
 rigid motion — the gauge — and then perturbed), except that held vertices (fixed ones, or each
 unfixed component's smallest id) carry the truth through the gauge exactly, so a perfect
-initialiser returns ``expected_poses(graph, truth)``.
+initialiser returns ``expected_poses(graph, truth)``. Builders take ``group`` (SE(3) by default,
+or SE(2)), so each test runs on both through one code path.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 
 from posegraph.graph import PoseGraph, component_anchors, connected_components
 from posegraph.lie import se3, so3
+from posegraph.lie.group import SE2, SE3
 
 
 def random_rotations(rng: np.random.Generator, count: int) -> np.ndarray:
@@ -22,34 +24,40 @@ def random_rotations(rng: np.random.Generator, count: int) -> np.ndarray:
     return so3.from_quaternion(q)
 
 
-def trajectory(rng: np.random.Generator, n: int, step: float = 1.0, turn: float = 0.3) -> np.ndarray:
-    """``(n, 4, 4)`` a random walk: each pose is the previous one moved by a random body-frame step."""
-    tangent = np.concatenate([rng.normal(scale=turn, size=(n, 3)), rng.normal(scale=step, size=(n, 3))], axis=1)
-    steps = se3.exp(tangent)
-    poses = np.empty((n, 4, 4))
-    poses[0] = se3.from_rotation_translation(random_rotations(rng, 1)[0], rng.normal(scale=5.0, size=3))
+def trajectory(rng: np.random.Generator, n: int, step: float = 1.0, turn: float = 0.3, group=SE3) -> np.ndarray:
+    """``(n, k, k)`` a random walk: each pose is the previous one moved by a random body-frame step."""
+    if group is SE2:
+        tangent = np.concatenate([rng.normal(scale=step, size=(n, 2)), rng.normal(scale=turn, size=(n, 1))], axis=1)
+        first = SE2.exp(np.concatenate([rng.normal(scale=5.0, size=2), rng.uniform(-np.pi, np.pi, 1)]))
+    else:
+        tangent = np.concatenate([rng.normal(scale=turn, size=(n, 3)), rng.normal(scale=step, size=(n, 3))], axis=1)
+        first = se3.from_rotation_translation(random_rotations(rng, 1)[0], rng.normal(scale=5.0, size=3))
+    steps = group.exp(tangent)
+    k = group.matrix_size
+    poses = np.empty((n, k, k))
+    poses[0] = first
     for k in range(1, n):  # a test fixture: n is tens of poses
         poses[k] = poses[k - 1] @ steps[k]
     return poses
 
 
 def information_matrices(
-    rng: np.random.Generator, count: int, low: float = 1.0, high: float = 1.0, rotate: bool = True
+    rng: np.random.Generator, count: int, low: float = 1.0, high: float = 1.0, rotate: bool = True, size: int = 6
 ) -> np.ndarray:
-    """``(count, 6, 6)`` SPD information in ``[ω; v]`` order with eigenvalues log-uniform in [low, high].
+    """``(count, d, d)`` SPD information (``d = size``) with eigenvalues log-uniform in [low, high].
 
     With ``rotate`` each matrix has random eigenvectors (coupling rotation and translation);
     otherwise it is diagonal.
     """
-    eigenvalues = np.exp(rng.uniform(np.log(low), np.log(high), size=(count, 6)))
+    eigenvalues = np.exp(rng.uniform(np.log(low), np.log(high), size=(count, size)))
     if not rotate:
-        return eigenvalues[:, :, None] * np.eye(6)
-    basis, _ = np.linalg.qr(rng.normal(size=(count, 6, 6)))
+        return eigenvalues[:, :, None] * np.eye(size)
+    basis, _ = np.linalg.qr(rng.normal(size=(count, size, size)))
     return (basis * eigenvalues[:, None, :]) @ basis.transpose(0, 2, 1)
 
 
 def noisy_measurements(
-    rng: np.random.Generator, exact: np.ndarray, information: np.ndarray, max_sigma=(0.05, 0.1)
+    rng: np.random.Generator, exact: np.ndarray, information: np.ndarray, max_sigma=(0.05, 0.1), group=SE3
 ) -> np.ndarray:
     """``Z · Exp(ε)`` with ε ~ N(0, Ω⁻¹), its standard deviation per eigen-direction capped.
 
@@ -58,10 +66,11 @@ def noisy_measurements(
     """
     eigenvalues, basis = np.linalg.eigh(information)
     sigma = 1.0 / np.sqrt(eigenvalues)
-    cap = np.where(np.abs(basis[:, :3, :]).sum(axis=1) >= np.abs(basis[:, 3:, :]).sum(axis=1), *max_sigma)
+    rotation, translation = list(group.rotation_axes), list(group.translation_axes)
+    cap = np.where(np.abs(basis[:, rotation, :]).sum(axis=1) >= np.abs(basis[:, translation, :]).sum(axis=1), *max_sigma)
     sigma = np.minimum(sigma, cap)
     noise = (basis @ (sigma * rng.normal(size=sigma.shape))[..., None])[..., 0]
-    return exact @ se3.exp(noise)
+    return exact @ group.exp(noise)
 
 
 def build_graph(
@@ -75,6 +84,7 @@ def build_graph(
     ids: np.ndarray | None = None,
     fixed: np.ndarray | None = None,
     file_perturbation: float = 0.5,
+    group=SE3,
 ) -> PoseGraph:
     """A graph whose measurements come from ``truth`` (noisy or exact) and whose file poses are off.
 
@@ -84,8 +94,8 @@ def build_graph(
     n = truth.shape[0]
     edge_from = np.asarray(edge_from, dtype=np.int64)
     edge_to = np.asarray(edge_to, dtype=np.int64)
-    exact = se3.inverse(truth[edge_from]) @ truth[edge_to]
-    measurements = noisy_measurements(rng, exact, information) if noise else exact
+    exact = group.inverse(truth[edge_from]) @ truth[edge_to]
+    measurements = noisy_measurements(rng, exact, information, group=group) if noise else exact
     ids = np.arange(n, dtype=np.int64) if ids is None else np.asarray(ids, dtype=np.int64)
     fixed = np.zeros(n, dtype=bool) if fixed is None else np.asarray(fixed, dtype=bool)
     graph = PoseGraph(
@@ -96,13 +106,14 @@ def build_graph(
         measurements=measurements,
         information=information,
         fixed=fixed,
+        group=group,
     )
     count, labels = connected_components(graph)
-    gauge = se3.exp(rng.normal(scale=1.0, size=(count, 6)))
+    gauge = group.exp(rng.normal(scale=1.0, size=(count, group.dim)))
     poses = gauge[labels] @ truth
     held = fixed.copy()
     held[component_anchors(graph)] = True
-    poses[~held] = poses[~held] @ se3.exp(rng.normal(scale=file_perturbation, size=(int((~held).sum()), 6)))
+    poses[~held] = poses[~held] @ group.exp(rng.normal(scale=file_perturbation, size=(int((~held).sum()), group.dim)))
     return graph.with_poses(poses)
 
 
@@ -114,7 +125,7 @@ def expected_poses(graph: PoseGraph, truth: np.ndarray) -> np.ndarray:
     first_held = np.full(count, -1)
     first_held[labels[held][::-1]] = np.flatnonzero(held)[::-1]
     h = first_held[labels]
-    return graph.poses[h] @ se3.inverse(truth[h]) @ truth
+    return graph.poses[h] @ graph.group.inverse(truth[h]) @ truth
 
 
 def loop_graph_edges(rng: np.random.Generator, n: int, loops: int) -> tuple[np.ndarray, np.ndarray]:
@@ -127,17 +138,17 @@ def loop_graph_edges(rng: np.random.Generator, n: int, loops: int) -> tuple[np.n
 
 
 def noise_free_graph(seed: int, n: int = 40, loops: int = 20, ids: np.ndarray | None = None,
-                     info_range=(1.0, 1e3)) -> tuple[PoseGraph, np.ndarray]:
+                     info_range=(1.0, 1e3), group=SE3) -> tuple[PoseGraph, np.ndarray]:
     """One component, exact measurements, information eigenvalues in ``info_range``."""
     rng = np.random.default_rng(seed)
-    truth = trajectory(rng, n)
+    truth = trajectory(rng, n, group=group)
     edge_from, edge_to = loop_graph_edges(rng, n, loops)
-    information = information_matrices(rng, edge_from.size, *info_range)
-    graph = build_graph(truth, edge_from, edge_to, information, rng=rng, ids=ids)
+    information = information_matrices(rng, edge_from.size, *info_range, size=group.dim)
+    graph = build_graph(truth, edge_from, edge_to, information, rng=rng, ids=ids, group=group)
     return graph, truth
 
 
-def hard_graph(seed: int, noise: bool = True, info_range=(1e-2, 1e7)) -> tuple[PoseGraph, np.ndarray]:
+def hard_graph(seed: int, noise: bool = True, info_range=(1e-2, 1e7), group=SE3) -> tuple[PoseGraph, np.ndarray]:
     """Everything that upsets other initialisers, at once, on ~70 vertices:
 
     * three components with unordered, sparse ids; one holds two ``FIX`` vertices;
@@ -151,7 +162,7 @@ def hard_graph(seed: int, noise: bool = True, info_range=(1e-2, 1e7)) -> tuple[P
     parts_from, parts_to, truths = [], [], []
     offset = 0
     for size in sizes:
-        truth = trajectory(rng, size)
+        truth = trajectory(rng, size, group=group)
         edge_from, edge_to = loop_graph_edges(rng, size, size // 2)
         # duplicates: repeat some edges, half of them reversed
         pick = rng.choice(edge_from.size, size=max(2, size // 5), replace=False)
@@ -168,7 +179,9 @@ def hard_graph(seed: int, noise: bool = True, info_range=(1e-2, 1e7)) -> tuple[P
     # degree-one leaves: new vertices joined to one existing vertex each, in either direction
     leaves = 6
     attach = rng.integers(0, offset, size=leaves)
-    leaf_poses = truth[attach] @ se3.exp(rng.normal(scale=[0.3, 0.3, 0.3, 1, 1, 1], size=(leaves, 6)))
+    leaf_scale = np.ones(group.dim)
+    leaf_scale[list(group.rotation_axes)] = 0.3
+    leaf_poses = truth[attach] @ group.exp(rng.normal(scale=leaf_scale, size=(leaves, group.dim)))
     truth = np.concatenate([truth, leaf_poses])
     leaf = np.arange(offset, offset + leaves)
     outward = rng.random(leaves) < 0.5
@@ -179,8 +192,10 @@ def hard_graph(seed: int, noise: bool = True, info_range=(1e-2, 1e7)) -> tuple[P
     ids = rng.permutation(np.arange(n) * 7 + 1000)
     fixed = np.zeros(n, dtype=bool)
     fixed[[sizes[0] + 3, sizes[0] + 11]] = True  # two FIX vertices in the second component
-    information = information_matrices(rng, edge_from.size, *info_range)
-    graph = build_graph(truth, edge_from, edge_to, information, rng=rng, noise=noise, ids=ids, fixed=fixed)
+    information = information_matrices(rng, edge_from.size, *info_range, size=group.dim)
+    graph = build_graph(
+        truth, edge_from, edge_to, information, rng=rng, noise=noise, ids=ids, fixed=fixed, group=group
+    )
     return graph, truth
 
 
@@ -216,3 +231,7 @@ def noise_free_cases():
     yield "sparse-unordered-ids", *noise_free_graph(1, ids=sparse_ids)
     yield "ill-conditioned-1e-2..1e7", *noise_free_graph(2, info_range=(1e-2, 1e7))
     yield "components+fix+duplicates+leaves", *hard_graph(3, noise=False)
+    yield "SE2 chain+loops", *noise_free_graph(0, group=SE2)
+    yield "SE2 sparse-unordered-ids", *noise_free_graph(1, ids=sparse_ids, group=SE2)
+    yield "SE2 ill-conditioned-1e-2..1e7", *noise_free_graph(2, info_range=(1e-2, 1e7), group=SE2)
+    yield "SE2 components+fix+duplicates+leaves", *hard_graph(3, noise=False, group=SE2)

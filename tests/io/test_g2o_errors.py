@@ -108,9 +108,19 @@ def test_negative_vertex_id(text_file):
     check(text_file, lines(*GOOD, vertex(-4)), G2oFormatError, 6, "negative")
 
 
-def test_two_dimensional_graph_is_refused(text_file):
-    text = lines("# a 2D file", "VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0", "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1")
-    check(text_file, text, G2oFormatError, 2, "2D pose graphs are not supported yet")
+def test_toro_two_dimensional_tags_are_refused(text_file):
+    text = lines("# a TORO file", "VERTEX2 0 0 0 0", "VERTEX2 1 1 0 0", "EDGE2 0 1 1 0 0 1 0 0 1 0 1")
+    check(text_file, text, G2oFormatError, 2, "TORO 2D tags", "VERTEX_SE2")
+
+
+@pytest.mark.parametrize("first, second", [(0, 1), (1, 0)])
+def test_a_file_mixing_two_and_three_dimensional_lines_is_refused(text_file, first, second):
+    planar = ["VERTEX_SE2 7 0 0 0", "EDGE_SE2 7 0 1 0 0 1 0 0 1 0 1"]
+    blocks = [list(GOOD), planar]
+    text = lines(*blocks[first], *blocks[second])
+    line = len(blocks[first]) + 1
+    tag = blocks[second][0].split()[0]
+    check(text_file, text, G2oFormatError, line, f"{tag} after", "mixes 2D and 3D lines")
 
 
 def test_fix_without_ids(text_file):

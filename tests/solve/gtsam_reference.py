@@ -42,10 +42,17 @@ def values_from_poses(ids, poses):
 
 
 def perturbed_poses(poses, rng, rotation_scale=1.0, translation_scale=1.0):
-    """Poses times a random SE(3) motion (large rotations included), without the project's Lie code."""
+    """Poses times a random SE(3) motion (large rotations included), without the project's Lie code;
+    SE(2) poses ``(n, 3, 3)`` times a random planar motion (angle about z, translation in the plane)."""
     from scipy.spatial.transform import Rotation
 
     n = poses.shape[0]
+    if poses.shape[-1] == 3:
+        angle = rng.normal(size=n) * rotation_scale
+        motion = np.tile(np.eye(3), (n, 1, 1))
+        motion[:, :2, :2] = np.stack([np.cos(angle), -np.sin(angle), np.sin(angle), np.cos(angle)], -1).reshape(n, 2, 2)
+        motion[:, :2, 2] = rng.normal(size=(n, 2)) * translation_scale
+        return poses @ motion
     motion = np.tile(np.eye(4), (n, 1, 1))
     motion[:, :3, :3] = Rotation.from_rotvec(rng.normal(size=(n, 3)) * rotation_scale).as_matrix()
     motion[:, :3, 3] = rng.normal(size=(n, 3)) * translation_scale

@@ -9,6 +9,7 @@ import pytest
 
 from posegraph.graph import PoseGraph
 from posegraph.io.g2o import read_g2o
+from posegraph.lie.group import SE2, SE3
 from posegraph.solve import IterationRecord, OptimizeResult, SolverParams, optimize
 from posegraph.solve.residuals import cost
 from posegraph.solve.sparsity import lower_csc
@@ -102,12 +103,16 @@ def test_torus3d_with_chordal_start_reaches_the_optimum(shared_dataset):
 # ---------------------------------------------------------------- synthetic graphs
 
 
-def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1):
-    """A noisy random walk with loop closures; initial poses = odometry with extra drift."""
+GROUPS = [SE3, SE2]
+
+
+def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1, group=SE3):
+    """A noisy random walk with loop closures; initial poses = odometry with extra drift (3D or 2D)."""
     rng = np.random.default_rng(seed)
-    truth = np.tile(np.eye(4), (n, 1, 1))
-    for k in range(1, n):
-        truth[k] = truth[k - 1] @ perturbed_poses(np.eye(4)[None], rng, 0.3, 1.0)[0]
+    k = group.matrix_size
+    truth = np.tile(np.eye(k), (n, 1, 1))
+    for v in range(1, n):
+        truth[v] = truth[v - 1] @ perturbed_poses(np.eye(k)[None], rng, 0.3, 1.0)[0]
     pairs = [(k, k + 1) for k in range(n - 1)]
     pairs += [tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(loops)]
     if components == 2:  # cut the walk in the middle, no loops across
@@ -117,7 +122,9 @@ def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1):
     edge_to = np.array([p[1] for p in pairs])
     exact = np.linalg.inv(truth[edge_from]) @ truth[edge_to]
     measurements = perturbed_poses(exact, rng, noise, noise)
-    information = np.tile(np.diag([400.0, 400, 400, 100, 100, 100]), (len(pairs), 1, 1))
+    diagonal = np.full(group.dim, 100.0)
+    diagonal[list(group.rotation_axes)] = 400.0
+    information = np.tile(np.diag(diagonal), (len(pairs), 1, 1))
     initial = perturbed_poses(truth, rng, 0.1, 0.3)
     mask = np.zeros(n, dtype=bool)
     if fixed is not None:
@@ -130,12 +137,14 @@ def synthetic_graph(seed, n=30, loops=20, noise=0.05, fixed=None, components=1):
         measurements=measurements,
         information=information,
         fixed=mask,
+        group=group,
     )
 
 
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
 @pytest.mark.parametrize("linear_solver", ["scipy", "auto"])
-def test_lm_and_gn_agree_on_a_synthetic_graph(linear_solver):
-    graph = synthetic_graph(0)
+def test_lm_and_gn_agree_on_a_synthetic_graph(linear_solver, group):
+    graph = synthetic_graph(0, group=group)
     tight = dict(relative_tolerance=1e-14, absolute_tolerance=1e-14, linear_solver=linear_solver)
     lm = optimize(graph, initial="file", params=SolverParams(method="lm", **tight))
     gn = optimize(graph, initial="file", params=SolverParams(method="gn", **tight))
@@ -145,8 +154,9 @@ def test_lm_and_gn_agree_on_a_synthetic_graph(linear_solver):
     np.testing.assert_allclose(lm.poses, gn.poses, atol=1e-6)
 
 
-def test_held_vertices_do_not_move_and_the_gauge_adds_nothing_to_the_cost():
-    graph = synthetic_graph(1, fixed=[3, 12])
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
+def test_held_vertices_do_not_move_and_the_gauge_adds_nothing_to_the_cost(group):
+    graph = synthetic_graph(1, fixed=[3, 12], group=group)
     result = optimize(graph, initial="file")
     np.testing.assert_array_equal(result.poses[[3, 12]], graph.poses[[3, 12]])
     # the anchor (smallest id) is free to move when the component has FIX vertices
@@ -154,17 +164,19 @@ def test_held_vertices_do_not_move_and_the_gauge_adds_nothing_to_the_cost():
     assert result.final_cost == pytest.approx(cost(graph, result.poses), rel=1e-13)
 
 
-def test_each_component_is_anchored_at_its_smallest_id():
-    graph = synthetic_graph(2, n=20, components=2)
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
+def test_each_component_is_anchored_at_its_smallest_id(group):
+    graph = synthetic_graph(2, n=20, components=2, group=group)
     result = optimize(graph, initial="file")
     assert result.converged
     np.testing.assert_array_equal(result.poses[[0, 10]], graph.poses[[0, 10]])
     assert np.abs(result.poses - graph.poses).max() > 1e-3
 
 
-def test_optimum_does_not_depend_on_which_single_vertex_holds_the_gauge():
-    free = synthetic_graph(3)
-    fixed_elsewhere = synthetic_graph(3, fixed=[17])
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
+def test_optimum_does_not_depend_on_which_single_vertex_holds_the_gauge(group):
+    free = synthetic_graph(3, group=group)
+    fixed_elsewhere = synthetic_graph(3, fixed=[17], group=group)
     tight = SolverParams(relative_tolerance=1e-14, absolute_tolerance=1e-14)
     a = optimize(free, initial="file", params=tight)
     b = optimize(fixed_elsewhere, initial="file", params=tight)
@@ -214,8 +226,9 @@ def test_lambda_bound_stops_lm():
     assert result.final_cost <= result.initial_cost
 
 
-def test_gauss_newton_on_an_exactly_consistent_graph_converges_to_zero():
-    graph = synthetic_graph(7, noise=0.0)
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
+def test_gauss_newton_on_an_exactly_consistent_graph_converges_to_zero(group):
+    graph = synthetic_graph(7, noise=0.0, group=group)
     result = optimize(graph, initial="file", params=SolverParams(method="gn"))
     assert result.converged
     assert result.final_cost < 1e-15
@@ -248,13 +261,14 @@ def test_initial_poses_are_not_modified():
     np.testing.assert_array_equal(start, graph.poses)
 
 
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
 @pytest.mark.parametrize("method", ["lm", "gn"])
-def test_starting_at_an_exact_optimum_converges_at_once(method):
-    graph = synthetic_graph(11, noise=0.0)
+def test_starting_at_an_exact_optimum_converges_at_once(method, group):
+    graph = synthetic_graph(11, noise=0.0, group=group)
     exact = graph.poses.copy()
     # make every measurement exact for the initial poses: zero residuals, zero gradient
     relative = np.linalg.inv(exact[graph.edge_from]) @ exact[graph.edge_to]
-    graph = PoseGraph(graph.ids, exact, graph.edge_from, graph.edge_to, relative, graph.information)
+    graph = PoseGraph(graph.ids, exact, graph.edge_from, graph.edge_to, relative, graph.information, group=group)
     result = optimize(graph, initial="file", params=SolverParams(method=method))
     assert result.converged, result.termination
     assert result.iterations <= 1
