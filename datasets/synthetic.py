@@ -742,6 +742,7 @@ def inject_outliers(
         measurements=merged(graph.measurements, measurements),
         information=merged(graph.information, graph.information[donors]),
         edge_source=None,
+        edge_lines=None,  # the injected edges have no line in any file
     )
     return injected, indices
 

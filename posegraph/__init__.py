@@ -7,6 +7,10 @@ Three lines from a file to an optimised file::
     result = posegraph.optimize(graph)            # chordal start, then Levenberg-Marquardt
     posegraph.write_g2o("out.g2o", graph, result.poses)
 
+Robust to wrong loop closures: ``posegraph.optimize(graph, params=posegraph.SolverParams(loss=
+posegraph.make_loss("cauchy")))`` (an M-estimator, Ceres' ``loss_function``), or
+``posegraph.optimize_robust(graph)`` (graduated non-convexity, gtsam's ``GncLMOptimizer``).
+
 The Lie-group core is in :mod:`posegraph.lie` (``so2``, ``se2``, ``so3``, ``se3``; ``group``). Names below are imported on first
 use, so ``import posegraph`` stays cheap (no scipy, gtsam, Open3D or matplotlib at start-up).
 """
@@ -29,6 +33,10 @@ _LAZY = {
     "SolverParams": "posegraph.solve",
     "OptimizeResult": "posegraph.solve",
     "initialize": "posegraph.init",
+    "optimize_robust": "posegraph.robust.pipeline",
+    "RobustResult": "posegraph.robust.pipeline",
+    "GncParams": "posegraph.robust.gnc",
+    "make_loss": "posegraph.robust.losses",
     "InputError": "posegraph.errors",
     "marginal_covariances": "posegraph.covariance",
     "joint_covariance": "posegraph.covariance",

@@ -11,6 +11,9 @@ from posegraph.cli.common import (
     check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
     warn,
 )
+from posegraph.cli.robust import (
+    check_robust_options, final_weights, output_graph, robust_options, robust_report, robust_summary, run_gnc,
+)
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
 
 NAME = "optimize"
@@ -30,7 +33,9 @@ EXAMPLES = """
   posegraph optimize garage.g2o -o out.g2o --method gn --init odometry --max-iterations 20 --quiet
   posegraph optimize -i 20 -o out.g2o in.g2o --fix 0 --stats     (g2o's habits: -i, fix by id)
   cat in.g2o | posegraph optimize - -o - --quiet > out.g2o
-  posegraph optimize in.g2o -o in.g2o --force      (overwrite the input, atomically)"""
+  posegraph optimize in.g2o -o in.g2o --force      (overwrite the input, atomically)
+  posegraph optimize noisy.g2o -o out.g2o --robust gnc --drop-outliers --report report.json
+  posegraph optimize in.g2o -o out.g2o --robust cauchy --robust-scale 3"""
 
 
 def add_arguments(p) -> None:
@@ -39,6 +44,7 @@ def add_arguments(p) -> None:
                    help="output pose graph (- for standard output; the summary then goes to stderr)")
     repair_option(p)
     solver_options(p)
+    robust_options(p)
     p.add_argument("--fix", metavar="ID", nargs="+", action="extend", type=non_negative_int, default=[],
                    help="hold these vertex ids at their start, besides the file's FIX lines (which then anchor "
                         "their component instead of its smallest id); OUT keeps the file's FIX lines only")
@@ -68,16 +74,24 @@ def run(args) -> int:
 
     graph, held, start, file_cost, seconds = _start(args, status)
     params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
+    robust = None
     with Timer() as t_opt:
-        result = optimize(held, initial=start, params=params)
+        if args.robust == "gnc":
+            robust = run_gnc(held, start, solver_params(args), args, status)
+            result = robust.result
+        else:
+            result = optimize(held, initial=start, params=params)
     seconds["optimise"] = t_opt.seconds
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
-    chi2 = chi2_summary(held, result.poses)
-    covariances = _covariances(args, status, held, result, seconds) if args.covariances else None
-    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, covariances)
+    weights = final_weights(held, args, result, robust)
+    inliers = output_graph(held, weights, drop=True)  # robust: χ² and covariances over the edges kept
+    chi2 = chi2_summary(inliers, result.poses)
+    covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2)
+        robust_summary(graph, weights, args)
     _warn_if_chi2_high(chi2)
     drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
@@ -93,6 +107,7 @@ def display_name_out(path: str) -> str:
 
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
+    check_robust_options(args)
     check_output(args.output, inputs=[args.input], allow_input=args.force, what="result", stdout=True)
     if args.report:
         check_output(args.report, inputs=[args.input], what="report", stdout=True)
@@ -120,7 +135,7 @@ def _start(args, status: Status):
         status(f"initialising ({args.init}): {graph.num_vertices} poses …")
     with Ticker(status, f"initialising ({args.init})"), Timer() as t_init:
         start = initial_poses(held, args)
-    if not args.quiet:
+    if not args.quiet and start is not None:  # None: --robust gnc's robust start, made by the optimiser
         start_cost = float(cost(graph, start)) if args.init != "file" else file_cost
         status(f"initialised ({args.init}): cost {fmt_cost(file_cost)} -> {fmt_cost(start_cost)} "
                f"({t_init.seconds:.3f} s)")
@@ -163,7 +178,9 @@ def _covariances(args, status: Status, held, result, seconds: dict):
     return covariances
 
 
-def _write_outputs(args, status: Status, graph, result, params, file_cost, seconds, chi2, covariances=None) -> None:
+def _write_outputs(
+    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None
+) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
     from posegraph.atomic import StagedOutputs, json_text
@@ -172,18 +189,20 @@ def _write_outputs(args, status: Status, graph, result, params, file_cost, secon
     printed = []
     with StagedOutputs() as outputs:
         with Ticker(status, f"writing {args.output}"), Timer() as t_write:
+            written = output_graph(graph, weights, drop=args.drop_outliers)
             if args.output == STDIO:
-                printed.append(format_g2o(graph, result.poses))
+                printed.append(format_g2o(written, result.poses))
             else:
-                write_g2o(outputs.stage(args.output), graph, result.poses)
+                write_g2o(outputs.stage(args.output), written, result.poses)
         seconds["write"] = t_write.seconds
         if args.report:
             from posegraph.report import optimize_report
 
-            report = json_text(optimize_report(
+            report = optimize_report(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
                 file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
-            ))
+            )
+            report = json_text(robust_report(report, args, weights))
             if args.report == STDIO:
                 printed.append(report)
             else:
@@ -246,8 +265,9 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
 
 def _dof_text(graph, chi2: dict) -> str:
     d = graph.information.shape[-1]
-    free = (d * graph.num_edges - chi2["dof"]) // d
-    return f"{d}·{graph.num_edges} edges − {d}·{free} free poses = {chi2['dof']}"
+    edges = sum(kind["count"] for kind in chi2["by_kind"].values())  # with --robust: the inliers
+    free = (d * edges - chi2["dof"]) // d
+    return f"{d}·{edges} edges − {d}·{free} free poses = {chi2['dof']}"
 
 
 def _stats_table(chi2: dict) -> list[str]:

@@ -31,8 +31,10 @@ def solver_params(args, callback=None):
     """:class:`posegraph.solve.SolverParams` from the options of :func:`solver_options`."""
     from posegraph.solve import SolverParams
 
+    from posegraph.cli.robust import robust_loss
+
     options = dict(method=args.method, max_iterations=args.max_iterations,
-                   linear_solver=args.linear_solver, callback=callback)
+                   linear_solver=args.linear_solver, callback=callback, loss=robust_loss(args))
     if args.relative_tolerance is not None:
         options["relative_tolerance"] = args.relative_tolerance
     if args.absolute_tolerance is not None:
@@ -41,9 +43,12 @@ def solver_params(args, callback=None):
 
 
 def initial_poses(graph, args):
-    """The start ``(n, 4, 4)`` that ``--init`` names."""
+    """The start ``(n, 4, 4)`` that ``--init`` names; None for ``--robust gnc --init chordal`` (the
+    robust chordal start, which GNC makes)."""
     from posegraph.init import initialize
 
+    if getattr(args, "robust", "none") == "gnc" and args.init == "chordal":
+        return None
     if args.init == "chordal":
         return initialize(graph, method="chordal", linear_solver=args.linear_solver)
     return initialize(graph, method=args.init)

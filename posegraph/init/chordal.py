@@ -52,7 +52,7 @@ from posegraph.graph import held_vertices
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
 from posegraph.init.weights import rotation_weights, translation_information
 
-__all__ = ["chordal_initialization", "chordal_rotations", "translations_given_rotations"]
+__all__ = ["chordal_initialization", "chordal_problem", "chordal_rotations", "translations_given_rotations"]
 
 
 def chordal_rotations(graph: PoseGraph, *, linear_solver: str = "auto") -> np.ndarray:
@@ -62,7 +62,7 @@ def chordal_rotations(graph: PoseGraph, *, linear_solver: str = "auto") -> np.nd
     ``"scipy"`` (:class:`posegraph.init.linear_system.RelativeLeastSquares`).
     """
     require_usable(graph)
-    return _rotations(graph, _problem(graph, linear_solver))
+    return _rotations(graph, chordal_problem(graph, linear_solver))
 
 
 def translations_given_rotations(
@@ -79,19 +79,29 @@ def translations_given_rotations(
     r = graph.group.space_dim
     if rotations.shape != (graph.num_vertices, r, r):
         raise ValueError(f"rotations must have shape {(graph.num_vertices, r, r)}, got {rotations.shape}")
-    return _translations(graph, rotations, _problem(graph, linear_solver))
+    return _translations(graph, rotations, chordal_problem(graph, linear_solver))
 
 
-def chordal_initialization(graph: PoseGraph, *, linear_solver: str = "auto") -> np.ndarray:
+def chordal_initialization(
+    graph: PoseGraph, *, linear_solver: str = "auto", problem: RelativeLeastSquares | None = None
+) -> np.ndarray:
     """``(n, k, k)`` poses: chordal rotations, then the cost-minimising translations given them.
 
     Fixed vertices and component anchors keep their file pose exactly. Works for any number of
     components, duplicate edges, degree-one vertices and information spanning many decades.
     Raises :class:`~posegraph.errors.GraphError` when the linear systems cannot be solved to
     working precision (no backend factorises them, or the solution overflows).
+
+    ``problem``: the analysed system of :func:`chordal_problem` for a graph with the same edges
+    and held vertices (e.g. ``graph`` with other information, as GNC reweights it): its pattern
+    and symbolic factorisation are reused instead of analysed anew; ``linear_solver`` is then
+    the problem's.
     """
     require_usable(graph)
-    problem = _problem(graph, linear_solver)  # both stages share its sparsity analysis
+    if problem is None:
+        problem = chordal_problem(graph, linear_solver)  # both stages share its sparsity analysis
+    elif not (np.array_equal(problem.edge_from, graph.edge_from) and np.array_equal(problem.edge_to, graph.edge_to)):
+        raise ValueError("the chordal problem was analysed for other edges than the graph's")
     try:
         rotations = _rotations(graph, problem)
         translations = _translations(graph, rotations, problem)
@@ -110,7 +120,8 @@ def chordal_initialization(graph: PoseGraph, *, linear_solver: str = "auto") -> 
     return poses
 
 
-def _problem(graph: PoseGraph, linear_solver: str) -> RelativeLeastSquares:
+def chordal_problem(graph: PoseGraph, linear_solver: str = "auto") -> RelativeLeastSquares:
+    """The sparse system both chordal stages solve, analysed for ``graph``'s edges and held vertices."""
     return RelativeLeastSquares(
         held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver, block=graph.group.space_dim
     )

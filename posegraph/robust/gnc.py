@@ -202,6 +202,7 @@ def run_gnc(
     dimension=6,
     initial_weights: np.ndarray | None = None,
     progress: Callable[[GncIteration], None] | None = None,
+    start_solved: bool = False,
 ) -> GncResult:
     """Graduated non-convexity (module docstring) over a weighted least-squares solver.
 
@@ -211,7 +212,9 @@ def run_gnc(
     weight 1 (e.g. odometry). ``dimension`` (int or ``(m,)``) sets the χ² thresholds.
     ``initial_weights`` ``(m,)`` weigh the first solve instead of all ones (gtsam's
     ``setWeights``), e.g. the weights of a robust start. ``progress`` is called after each outer
-    iteration with a :class:`GncIteration`.
+    iteration with a :class:`GncIteration`. ``start_solved``: ``poses0`` already minimises the
+    first weighted problem (e.g. the chordal start of the graph with every edge), so that solve
+    is skipped.
     """
     params = GncParams() if params is None else params
     s0 = np.asarray(squared_residuals(poses0), dtype=np.float64)
@@ -224,7 +227,7 @@ def run_gnc(
     weights = np.ones(m) if initial_weights is None else np.where(known, 1.0, np.asarray(initial_weights, dtype=np.float64))
     if weights.shape != (m,):
         raise ValueError(f"initial_weights must have shape ({m},), got {weights.shape}")
-    poses = solve_weighted(poses0, weights)
+    poses = poses0 if start_solved else solve_weighted(poses0, weights)
     mu = initial_mu(s0, thresholds, params.loss)
     previous = 0.5 * float(np.dot(weights, squared_residuals(poses)))
     if np.all(known):

@@ -22,6 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from posegraph.graph import PoseGraph
+from posegraph.robust.active import ActiveEdgeSolves
 from posegraph.robust.gnc import GncParams, GncResult, run_gnc
 
 __all__ = ["inlier_chain_start", "downweighted_chordal_start", "robust_chordal_start", "squared_residuals", "weighted_graph"]
@@ -78,19 +79,30 @@ def downweighted_chordal_start(graph: PoseGraph, factor: float = 1e-3, known_inl
 
 
 def robust_chordal_start(
-    graph: PoseGraph, known_inliers: np.ndarray | None = None, params: GncParams | None = None
+    graph: PoseGraph,
+    known_inliers: np.ndarray | None = None,
+    params: GncParams | None = None,
+    *,
+    solves: ActiveEdgeSolves | None = None,
+    progress=None,
 ) -> GncResult:
     """GNC over chordal starts: each outer iteration's weighted solve is the chordal start of the
     weighted graph, evaluated on the true residuals. Returns the :class:`GncResult` (its
-    ``poses`` are the start; its ``weights`` a first guess at the inliers)."""
-    from posegraph.init.chordal import chordal_initialization
+    ``poses`` are the start; its ``weights`` a first guess at the inliers).
 
+    The weighted chordal solves run over the edges of nonzero weight, analysed once per edge set
+    (:class:`~posegraph.robust.active.ActiveEdgeSolves`; pass ``solves`` to share its analyses).
+    ``progress`` gets each outer iteration's :class:`~posegraph.robust.gnc.GncIteration`.
+    """
     known = _known(graph, known_inliers)
+    solves = ActiveEdgeSolves(graph) if solves is None else solves
     return run_gnc(
         lambda poses: squared_residuals(graph, poses),
-        lambda _start, weights: chordal_initialization(weighted_graph(graph, weights)),
-        chordal_initialization(graph),
+        lambda _start, weights: solves.chordal(weights),
+        solves.chordal(np.ones(graph.num_edges)),
         known,
         params,
         dimension=graph.group.dim,  # the χ² thresholds: 6 for SE(3), 3 for SE(2)
+        progress=progress,
+        start_solved=True,
     )

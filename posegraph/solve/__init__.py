@@ -20,8 +20,8 @@ Modules: :mod:`~posegraph.solve.residuals` (residuals, cost, Jacobians),
 :mod:`~posegraph.solve.params` and :mod:`~posegraph.solve.result` (dataclasses).
 """
 
-from posegraph.solve.optimizer import optimize
+from posegraph.solve.optimizer import Analysis, analyze, optimize
 from posegraph.solve.params import SolverParams
 from posegraph.solve.result import IterationRecord, OptimizeResult
 
-__all__ = ["SolverParams", "OptimizeResult", "IterationRecord", "optimize"]
+__all__ = ["SolverParams", "OptimizeResult", "IterationRecord", "Analysis", "analyze", "optimize"]

@@ -55,10 +55,55 @@ from posegraph.solve.trust_region import (  # noqa: F401  (the termination reaso
     Damping, backtrack, converged, model_decrease, negligible,
 )
 
-__all__ = ["optimize"]
+__all__ = ["optimize", "Analysis", "analyze"]
 
 
-def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None) -> OptimizeResult:
+@dataclass(frozen=True, eq=False)
+class Analysis:
+    """The symbolic work of :func:`optimize` for one graph structure, reusable across calls.
+
+    Depends only on the edges ``(edge_from, edge_to)``, the held vertices and the group's
+    tangent dimension — not on measurements, information or poses — so a caller that solves the
+    same graph many times with new information (IRLS, GNC outer iterations) builds it once with
+    :func:`analyze` and passes it to every :func:`optimize` call: the Hessian's block pattern and
+    scatter positions, and the linear solver with its fill-reducing ordering and symbolic
+    factorisation, are then made once.
+    """
+
+    edge_from: np.ndarray
+    """``(m,)`` the edges' first vertices, as analysed."""
+    edge_to: np.ndarray
+    """``(m,)`` the edges' second vertices."""
+    held: np.ndarray
+    """``(n,)`` bool, vertices without variables (:func:`posegraph.graph.held_vertices`)."""
+    pattern: HessianPattern
+    """Block pattern of H (:func:`posegraph.solve.sparsity.analyze_pattern`)."""
+    solver: object
+    """The linear solver, symbolic analysis done (:mod:`posegraph.solve.linear`); None when nothing is free."""
+    seconds: float
+    """Seconds spent analysing."""
+
+    def matches(self, graph: PoseGraph) -> bool:
+        """Whether ``graph`` has exactly the edges this analysis was made for."""
+        return np.array_equal(self.edge_from, graph.edge_from) and np.array_equal(self.edge_to, graph.edge_to)
+
+
+def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
+    """The :class:`Analysis` of ``graph`` for the linear solver, ordering and threads of ``params``."""
+    start = time.perf_counter()
+    params = SolverParams() if params is None else params
+    held = held_vertices(graph)
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim)
+    solver = None
+    if pattern.num_variables > 0 and graph.num_edges > 0:
+        solver = make_linear_solver(params.linear_solver, pattern, params.ordering, params.blas_threads)
+    edges = (np.array(graph.edge_from, copy=True), np.array(graph.edge_to, copy=True))
+    return Analysis(*edges, held, pattern, solver, time.perf_counter() - start)
+
+
+def optimize(
+    graph: PoseGraph, initial=None, params: SolverParams | None = None, *, analysis: Analysis | None = None
+) -> OptimizeResult:
     """Minimise ``½ Σ eᵀ Ω e`` (or ``½ Σ ρ(eᵀΩe)`` with ``params.loss``) over the free poses.
 
     Parameters
@@ -71,6 +116,10 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
         ``"chordal"``.
     params : SolverParams, optional
         Method, tolerances, damping, loss and linear solver (:class:`~posegraph.solve.params.SolverParams`).
+    analysis : Analysis, optional
+        The symbolic analysis of a graph with the same edges (:func:`analyze`), reused instead of
+        made anew (its linear solver, not ``params.linear_solver``, then runs). ``ValueError``
+        when its edges differ from ``graph``'s.
 
     Returns
     -------
@@ -79,7 +128,10 @@ def optimize(graph: PoseGraph, initial=None, params: SolverParams | None = None)
         and the linear solver that ran.
     """
     start = time.perf_counter()
-    run = _Run(graph, _initial_poses(graph, initial), SolverParams() if params is None else params)
+    params = SolverParams() if params is None else params
+    if analysis is not None and not analysis.matches(graph):
+        raise ValueError("the analysis was made for other edges than the graph's")
+    run = _Run(graph, _initial_poses(graph, initial), params, analysis)
     early = run.nothing_to_do()
     if early is not None:
         return run.result(early, [], start)
@@ -166,22 +218,18 @@ class _Outcome:
 class _Run:
     """The state of one :func:`optimize` call: the problem, the current poses and cost, λ, the clock."""
 
-    def __init__(self, graph: PoseGraph, poses: np.ndarray, params: SolverParams):
+    def __init__(self, graph: PoseGraph, poses: np.ndarray, params: SolverParams, analysis: Analysis | None):
         setup_start = time.perf_counter()
         self.graph, self.params, self.poses = graph, params, poses
-        held = held_vertices(graph)
-        self.free = ~held
-        self.pattern: HessianPattern = analyze_pattern(
-            graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim
-        )
+        analysis = analyze(graph, params) if analysis is None else analysis
+        self.free = ~analysis.held
+        self.pattern: HessianPattern = analysis.pattern
         self.objective = Objective(graph, params.loss)
         self.evaluation = self.objective.evaluate(poses)
         self.initial_cost = self.evaluation.cost
         if not np.isfinite(self.initial_cost):
             raise ValueError("the cost at the initial poses is not finite")
-        self.solver = None
-        if self.pattern.num_variables > 0 and graph.num_edges > 0:
-            self.solver = make_linear_solver(params.linear_solver, self.pattern, params.ordering, params.blas_threads)
+        self.solver = analysis.solver
         self.seconds_setup = time.perf_counter() - setup_start
         self.damping = Damping(params)
         self.clock = PhaseClock()

@@ -1,0 +1,131 @@
+"""``optimize``'s robust options: ``--robust``, ``--robust-scale``, ``--known-inliers``, ``--drop-outliers``.
+
+``--robust NAME`` with an M-estimator (``huber``, ``cauchy``, ``geman-mcclure``, ``tukey``,
+``dcs``, ``tls``) gives the solver that loss (:func:`posegraph.robust.make_loss`, scale
+``--robust-scale`` or the loss's default); ``--robust gnc`` runs
+:func:`posegraph.robust.optimize_robust` (GNC-TLS from the robust chordal start with
+``--init chordal``, the default; from the ``--init odometry`` / ``file`` poses otherwise).
+An edge whose final weight is below 0.5 is judged an outlier.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+ROBUST_CHOICES = ("none", "huber", "cauchy", "geman-mcclure", "tukey", "dcs", "tls", "gnc")
+"""``--robust`` values: no loss, the six M-estimators, or graduated non-convexity."""
+
+OUTLIER_WEIGHT = 0.5
+"""An edge whose final weight (ρ'(s), or GNC's weight) is below this is reported as an outlier."""
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (value > 0 and np.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text}")
+    return value
+
+
+def robust_options(p: argparse.ArgumentParser) -> None:
+    """Add the four robust options to ``p``."""
+    p.add_argument("--robust", choices=ROBUST_CHOICES, default="none", metavar="{" + ",".join(ROBUST_CHOICES) + "}",
+                   help="robust loss on every edge, or gnc: graduated non-convexity with truncated least squares "
+                        "from a start that wrong loop closures do not corrupt (default none: least squares)")
+    p.add_argument("--robust-scale", type=positive_float, default=None, metavar="C",
+                   help="the loss's scale in units of the whitened residual norm (default: the loss's own; "
+                        "gnc: the inlier threshold, default sqrt of the chi2 0.99 quantile, 4.10 in 3D)")
+    p.add_argument("--known-inliers", choices=("odometry", "none"), default="odometry",
+                   help="gnc: edges never rejected (default odometry: consecutive vertex ids)")
+    p.add_argument("--drop-outliers", action="store_true",
+                   help="write OUT without the edges judged outliers (final weight below 0.5)")
+
+
+def check_robust_options(args) -> None:
+    """Usage errors (exit 2) before any work."""
+    from posegraph.cli.common import UsageError
+
+    if args.drop_outliers and args.robust == "none":
+        raise UsageError("--drop-outliers needs a robust loss (--robust NAME)")
+    if args.robust_scale is not None and args.robust == "none":
+        raise UsageError("--robust-scale needs a robust loss (--robust NAME)")
+    if args.drop_outliers and "-" not in (args.input, args.output) and os.path.exists(args.output) and os.path.samefile(args.output, args.input):
+        raise UsageError(f"--drop-outliers never overwrites the input {args.input}: choose another OUT")
+
+
+def robust_loss(args):
+    """The loss of ``--robust`` for :class:`~posegraph.solve.SolverParams`; None for ``none`` and ``gnc``."""
+    if getattr(args, "robust", "none") in ("none", "gnc"):
+        return None
+    from posegraph.robust import make_loss
+
+    return make_loss(args.robust.replace("-", "_"), args.robust_scale)
+
+
+def run_gnc(graph, start, params, args, status):
+    """:func:`posegraph.robust.optimize_robust` as ``--robust gnc`` asks; progress per outer iteration."""
+    from posegraph.robust.gnc import GncParams
+    from posegraph.robust.pipeline import optimize_robust
+
+    gnc = GncParams() if args.robust_scale is None else GncParams(inlier_threshold=args.robust_scale**2)
+
+    def progress(record) -> None:
+        stage = "tls" if np.isinf(record.mu) else "gnc"
+        status(f"  {stage} {record.iteration:3d}  mu {record.mu:.3g}  inliers {record.inliers}  cost {record.cost:.10e}")
+
+    return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress)
+
+
+def final_weights(graph, args, result, robust) -> np.ndarray | None:
+    """``(m,)`` final edge weights (GNC's, or ρ'(s) at the result), None without ``--robust``."""
+    if robust is not None:
+        return robust.weights
+    loss = robust_loss(args)
+    if loss is None:
+        return None
+    from posegraph.robust.starts import squared_residuals
+
+    return np.asarray(loss.weight(squared_residuals(graph, result.poses)), dtype=np.float64)
+
+
+def robust_summary(graph, weights: np.ndarray | None, args) -> None:
+    """Print the outlier line of the summary, if robust: after the others, on the same stream
+    (stderr when standard output carries the result or the report)."""
+    if weights is not None:
+        out = sys.stderr if "-" in (args.output, args.report) else sys.stdout
+        print(outlier_line(graph, weights), file=out, flush=True)
+
+
+def robust_report(report: dict, args, weights: np.ndarray | None) -> dict:
+    """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
+    indices with final weight below 0.5) when robust; unchanged otherwise."""
+    if weights is not None:
+        report["robust"] = args.robust
+        report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
+    return report
+
+
+def outlier_line(graph, weights: np.ndarray) -> str:
+    """The summary line: how many loop closures (and odometry edges, if any) were judged outliers."""
+    outlier = weights < OUTLIER_WEIGHT
+    odometry = graph.odometry_mask()
+    loops = int(np.count_nonzero(outlier & ~odometry))
+    line = f"outliers:       {loops} of {int(np.count_nonzero(~odometry))} loop closures (final weight < {OUTLIER_WEIGHT})"
+    rejected_odometry = int(np.count_nonzero(outlier & odometry))
+    return line + (f", and {rejected_odometry} odometry edges" if rejected_odometry else "")
+
+
+def output_graph(graph, weights: np.ndarray | None, *, drop: bool):
+    """``graph`` without the edges judged outliers when ``drop`` and robust, else ``graph``."""
+    if not drop or weights is None:
+        return graph
+    from posegraph.robust.active import edge_subgraph
+
+    return edge_subgraph(graph, np.flatnonzero(weights >= OUTLIER_WEIGHT))

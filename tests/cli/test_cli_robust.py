@@ -1,0 +1,98 @@
+"""`posegraph optimize --robust …` end to end: GNC finds the injected outliers, the report lists
+them, --drop-outliers writes the graph without them, bad values exit 2 with one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.cli.conftest import assert_one_error_line, run_cli
+
+
+@pytest.fixture(scope="module")
+def corrupted(tmp_path_factory):
+    """A synthetic grid with 20 % injected outliers, written as g2o: ``(path, outlier indices)``."""
+    from datasets.synthetic import grid, inject_outliers
+    from posegraph.io.g2o import write_g2o
+
+    graph, indices = inject_outliers(grid(4, 4, 3, seed=1).graph, fraction=0.2, seed=1)
+    path = tmp_path_factory.mktemp("robust") / "grid_outliers.g2o"
+    write_g2o(path, graph)
+    return path, indices
+
+
+def test_gnc_reports_and_drops_exactly_the_outliers(corrupted, tmp_path):
+    from posegraph.io.g2o import read_g2o
+
+    path, indices = corrupted
+    out, report = tmp_path / "out.g2o", tmp_path / "report.json"
+    run = run_cli("optimize", path, "-o", out, "--robust", "gnc", "--report", report, "--drop-outliers")
+    assert run.returncode == 0, run.stderr
+    assert json.loads(report.read_text())["outlier_edges"] == indices.tolist()
+    loops = int(np.count_nonzero(~read_g2o(path).odometry_mask()))
+    assert f"outliers:       {len(indices)} of {loops} loop closures" in run.stdout
+    kept = read_g2o(path).num_edges - len(indices)
+    assert f"dof = 6·{kept} edges" in run.stdout  # χ² over the inliers
+    gnc_lines = [line for line in run.stderr_lines if line.strip().startswith(("gnc ", "tls "))]
+    assert gnc_lines and all("mu " in line and "inliers " in line and "cost " in line for line in gnc_lines)
+    source, written = read_g2o(path), read_g2o(out)
+    keep = np.setdiff1d(np.arange(source.num_edges), indices)
+    assert written.num_edges == len(keep)
+    np.testing.assert_array_equal(written.measurements, source.measurements[keep])
+    np.testing.assert_array_equal(written.information, source.information[keep])
+    np.testing.assert_array_equal(source.ids[written.edge_from], source.ids[source.edge_from[keep]])
+
+
+def test_without_drop_outliers_every_edge_is_written(corrupted, tmp_path):
+    from posegraph.io.g2o import read_g2o
+
+    path, _ = corrupted
+    out = tmp_path / "out.g2o"
+    assert run_cli("optimize", path, "-o", out, "--robust", "gnc", "-q").returncode == 0
+    assert read_g2o(out).num_edges == read_g2o(path).num_edges
+
+
+def test_m_estimator_report_lists_low_weight_edges(corrupted, tmp_path):
+    path, indices = corrupted
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "o.g2o", "--robust", "cauchy", "--robust-scale", "3", "-q", "--report", report)
+    assert run.returncode == 0, run.stderr
+    listed = json.loads(report.read_text())["outlier_edges"]
+    assert set(indices.tolist()) <= set(listed)  # every wrong loop closure ends with weight < 0.5
+
+
+def test_default_report_has_no_robust_fields(corrupted, tmp_path):
+    path, _ = corrupted
+    report = tmp_path / "r.json"
+    assert run_cli("optimize", path, "-o", tmp_path / "o.g2o", "-q", "--report", report).returncode == 0
+    assert "outlier_edges" not in json.loads(report.read_text())
+
+
+@pytest.mark.parametrize(
+    "args, fragments",
+    [
+        (["--robust", "huber", "--robust-scale", "0"], ["--robust-scale", "> 0"]),
+        (["--robust", "cauchy", "--robust-scale", "-1"], ["--robust-scale", "> 0"]),
+        (["--robust", "welsch"], ["--robust", "invalid choice", "gnc"]),
+        (["--drop-outliers"], ["--drop-outliers", "--robust"]),
+        (["--robust-scale", "2"], ["--robust-scale", "--robust"]),
+    ],
+)
+def test_bad_values_exit_2_with_one_line(corrupted, tmp_path, args, fragments):
+    path, _ = corrupted
+    out = tmp_path / "o.g2o"
+    assert_one_error_line(run_cli("optimize", path, "-o", out, *args), *fragments)
+    assert not out.exists()
+
+
+def test_drop_outliers_never_overwrites_the_input(corrupted, tmp_path):
+    import shutil
+
+    path = tmp_path / "in.g2o"
+    shutil.copy(corrupted[0], path)
+    before = path.read_bytes()
+    run = run_cli("optimize", path, "-o", path, "--robust", "gnc", "--drop-outliers", "--force")
+    assert_one_error_line(run, "--drop-outliers", "input")
+    assert path.read_bytes() == before
