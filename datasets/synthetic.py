@@ -715,9 +715,12 @@ def inject_outliers(
     rng = np.random.default_rng(seed)
     pairs = _free_pairs(rng, graph, count)
     if translation_range is None:
-        positions = graph.poses[:, :3, 3]
+        positions = graph.poses[:, :-1, -1]  # (n, 3) or, for SE(2), (n, 2)
         translation_range = max(1.0, 0.5 * float(np.linalg.norm(np.ptp(positions, axis=0)))) if len(positions) else 1.0
-    measurements = random_relative_poses(rng, count, translation_range)
+    if graph.group.matrix_size == 3:  # SE(2): a random angle and planar translation
+        measurements = _random_poses(rng, count, translation_range, graph.group)
+    else:  # SE(3), drawn as random_relative_poses always has (same seed, same outliers)
+        measurements = random_relative_poses(rng, count, translation_range)
     donors = rng.choice(loops if len(loops) else np.arange(graph.num_edges), size=count)
 
     # Front-end order: after the last original edge whose newer vertex (by id) is not later.

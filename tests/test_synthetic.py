@@ -278,6 +278,22 @@ def test_injected_outliers_are_wrong_and_reproducible():
     assert not np.array_equal(other.measurements, graph.measurements)
 
 
+def test_injected_outliers_on_a_planar_graph_are_planar_and_wrong(tmp_path):
+    """SE(2) graphs get SE(2) outliers (an angle and a planar translation), written back as EDGE_SE2."""
+    data = synthetic.manhattan(steps=300, noise=NoiseParams(noiseless=True), seed=2)
+    graph, indices = synthetic.inject_outliers(data.graph, fraction=0.3, seed=1)
+    assert graph.group.name == "SE2" and graph.measurements.shape[1:] == (3, 3)
+    assert len(indices) == round(0.3 * np.count_nonzero(~data.graph.odometry_mask()))
+    rotations = graph.measurements[indices, :2, :2]
+    np.testing.assert_allclose(rotations @ np.swapaxes(rotations, 1, 2), np.broadcast_to(np.eye(2), rotations.shape), atol=1e-12)
+    norms = np.linalg.norm(edge_residuals(data.ground_truth, graph), axis=1)
+    outlier = np.zeros(graph.num_edges, bool)
+    outlier[indices] = True
+    assert np.all(norms[~outlier] < 1e-9) and np.all(norms[outlier] > 1e-2)
+    path, _ = synthetic.write_injected(tmp_path / "m.g2o", graph, indices)
+    assert "EDGE_SE2" in path.read_text() and "SE3" not in path.read_text()
+
+
 def test_inject_outliers_bad_arguments():
     clean = grid(3, 2, 2, seed=1).graph
     with pytest.raises(ValueError, match="exactly one"):
