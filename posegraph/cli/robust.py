@@ -11,10 +11,9 @@ An edge whose final weight is below 0.5 is judged an outlier.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
-
-import numpy as np
 
 ROBUST_CHOICES = ("none", "huber", "cauchy", "geman-mcclure", "tukey", "dcs", "tls", "gnc")
 """``--robust`` values: no loss, the six M-estimators, or graduated non-convexity."""
@@ -29,7 +28,7 @@ def positive_float(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and np.isfinite(value)):
+    if not (value > 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text}")
     return value
 
@@ -77,14 +76,16 @@ def run_gnc(graph, start, params, args, status):
     gnc = GncParams() if args.robust_scale is None else GncParams(inlier_threshold=args.robust_scale**2)
 
     def progress(record) -> None:
-        stage = "tls" if np.isinf(record.mu) else "gnc"
+        stage = "tls" if math.isinf(record.mu) else "gnc"
         status(f"  {stage} {record.iteration:3d}  mu {record.mu:.3g}  inliers {record.inliers}  cost {record.cost:.10e}")
 
     return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress)
 
 
-def final_weights(graph, args, result, robust) -> np.ndarray | None:
+def final_weights(graph, args, result, robust):
     """``(m,)`` final edge weights (GNC's, or ρ'(s) at the result), None without ``--robust``."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
     if robust is not None:
         return robust.weights
     loss = robust_loss(args)
@@ -95,7 +96,7 @@ def final_weights(graph, args, result, robust) -> np.ndarray | None:
     return np.asarray(loss.weight(squared_residuals(graph, result.poses)), dtype=np.float64)
 
 
-def robust_summary(graph, weights: np.ndarray | None, args) -> None:
+def robust_summary(graph, weights, args) -> None:
     """Print the outlier line of the summary, if robust: after the others, on the same stream
     (stderr when standard output carries the result or the report)."""
     if weights is not None:
@@ -103,17 +104,21 @@ def robust_summary(graph, weights: np.ndarray | None, args) -> None:
         print(outlier_line(graph, weights), file=out, flush=True)
 
 
-def robust_report(report: dict, args, weights: np.ndarray | None) -> dict:
+def robust_report(report: dict, args, weights) -> dict:
     """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
     indices with final weight below 0.5) when robust; unchanged otherwise."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
     if weights is not None:
         report["robust"] = args.robust
         report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
     return report
 
 
-def outlier_line(graph, weights: np.ndarray) -> str:
+def outlier_line(graph, weights) -> str:
     """The summary line: how many loop closures (and odometry edges, if any) were judged outliers."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
     outlier = weights < OUTLIER_WEIGHT
     odometry = graph.odometry_mask()
     loops = int(np.count_nonzero(outlier & ~odometry))
@@ -122,8 +127,10 @@ def outlier_line(graph, weights: np.ndarray) -> str:
     return line + (f", and {rejected_odometry} odometry edges" if rejected_odometry else "")
 
 
-def output_graph(graph, weights: np.ndarray | None, *, drop: bool):
+def output_graph(graph, weights, *, drop: bool):
     """``graph`` without the edges judged outliers when ``drop`` and robust, else ``graph``."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
     if not drop or weights is None:
         return graph
     from posegraph.robust.active import edge_subgraph

@@ -147,3 +147,14 @@ def test_freed_memory_is_kept_for_reuse_unless_the_user_tunes_malloc():
     assert run_python(code).stdout.split() == ["True"]
     for variable in ("MALLOC_TOP_PAD_", "GLIBC_TUNABLES"):
         assert run_python(code, **{variable: "131072" if variable != "GLIBC_TUNABLES" else "glibc.malloc.top_pad=131072"}).stdout.split() == ["False"]
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["optimize", "--help"], ["plot", "--help"], ["export", "--help"]])
+def test_help_loads_no_numpy(argv):
+    """Help texts come from the parser alone: numpy (and with it BLAS, before its thread count is set
+    for a solve) is not loaded by any subcommand module at import time."""
+    proc = subprocess.run([sys.executable, "-X", "importtime", str(PROJECT_ROOT / "cli.py"), *argv],
+                          capture_output=True, text=True, cwd=PROJECT_ROOT, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    imported = [line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")]
+    assert imported and not [name for name in imported if name.split(".")[0] == "numpy"]
