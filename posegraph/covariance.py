@@ -44,13 +44,6 @@ __all__ = [
 ]
 
 
-def tangent_dimension(graph) -> int:
-    """``d``: the group's tangent dimension (``graph.group.dim`` when present, else Ω's size)."""
-    group = getattr(graph, "group", None)
-    dim = getattr(group, "dim", None)
-    return int(dim) if dim is not None else int(np.shape(graph.information)[-1])
-
-
 def hessian_at(graph, poses):
     """The Gauss-Newton matrix at ``poses`` ``(n, k, k)`` (``k`` = ``graph.group.matrix_size``): ``(pattern, data)``.
 
@@ -63,7 +56,7 @@ def hessian_at(graph, poses):
     from posegraph.solve.sparsity import analyze_pattern, hessian_values
 
     held = held_vertices(graph)
-    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, tangent_dimension(graph))
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim)
     blocks = linearize(np.asarray(poses, dtype=np.float64), graph)
     return pattern, hessian_values(pattern, blocks.hessian_blocks)
 
@@ -437,7 +430,7 @@ class _Factorisation:
 
 
 def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") -> _Factorisation:
-    d = tangent_dimension(graph)
+    d = graph.group.dim
     if np.shape(poses) != np.shape(graph.poses):
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
     pattern, data = hessian_at(graph, poses)
@@ -511,7 +504,7 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     at ``poses``.
     """
     vertices = _vertex_indices(graph, vertices)
-    d = tangent_dimension(graph)
+    d = graph.group.dim
     out = np.zeros((vertices.shape[0], d, d))
     if vertices.size == 0:
         return out
@@ -539,7 +532,7 @@ def joint_covariance(graph, poses, vertices) -> np.ndarray:
     with ``L`` each (:func:`_solve_columns`).
     """
     vertices = _vertex_indices(graph, vertices)
-    d = tangent_dimension(graph)
+    d = graph.group.dim
     k = vertices.shape[0]
     out = np.zeros((k, d, k, d))
     if k == 0:

@@ -86,10 +86,9 @@ def graph_info(graph) -> dict:
 
 def edge_chi2(graph, poses=None) -> np.ndarray:
     """``(m,)`` per-edge ``χ²_e = e_eᵀ Ω_e e_e`` at ``poses`` (default the graph's), e the edge residual."""
-    from posegraph.solve.residuals import edge_residuals
+    from posegraph.solve.residuals import edge_residuals, squared_norms
 
-    residuals = edge_residuals(graph.poses if poses is None else poses, graph)
-    return np.einsum("ei,eij,ej->e", residuals, graph.information, residuals)
+    return squared_norms(edge_residuals(graph.poses if poses is None else poses, graph), graph.information)
 
 
 def chi2_summary(graph, poses=None) -> dict:

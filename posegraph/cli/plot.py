@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 
 from posegraph.cli.common import (
-    EXIT_OK, Status, UsageError, check_figure, check_inputs, display_name, read_graph, repair_option,
+    EXIT_OK, Status, UsageError, check_figure, check_inputs, display_name, non_negative_float, positive_int,
+    read_graph, repair_option,
 )
-from posegraph.cli.common import non_negative_float, positive_int
 
 NAME = "plot"
 HELP = "draw trajectories in 3D or, for 2D graphs, from the top (PNG, PDF, SVG), with uncertainty ellipses"

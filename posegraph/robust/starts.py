@@ -30,10 +30,9 @@ __all__ = ["inlier_chain_start", "downweighted_chordal_start", "robust_chordal_s
 
 def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
     """``(m,)`` squared whitened residuals ``s = eᵀΩe`` of every edge at ``poses`` ``(n, k, k)``."""
-    from posegraph.solve.residuals import edge_residuals
+    from posegraph.solve.residuals import edge_residuals, squared_norms
 
-    e = edge_residuals(poses, graph)
-    return np.einsum("mi,mij,mj->m", e, graph.information, e)
+    return squared_norms(edge_residuals(poses, graph), graph.information)
 
 
 def weighted_graph(graph: PoseGraph, weights: np.ndarray) -> PoseGraph:
