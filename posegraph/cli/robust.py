@@ -15,22 +15,13 @@ import math
 import os
 import sys
 
+from posegraph.cli.common import positive_float
+
 ROBUST_CHOICES = ("none", "huber", "cauchy", "geman-mcclure", "tukey", "dcs", "tls", "gnc")
 """``--robust`` values: no loss, the six M-estimators, or graduated non-convexity."""
 
 OUTLIER_WEIGHT = 0.5
 """An edge whose final weight (ρ'(s), or GNC's weight) is below this is reported as an outlier."""
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text}")
-    return value
 
 
 def robust_options(p: argparse.ArgumentParser) -> None:
