@@ -28,7 +28,7 @@ import warnings
 
 import numpy as np
 
-from posegraph.atomic import atomic_path
+from posegraph.atomic import write_text_atomic
 from posegraph.errors import InputError, InputWarning
 from posegraph.io.text_input import read_text
 from posegraph.lie import se2, so3
@@ -98,19 +98,13 @@ def format_kitti(poses: np.ndarray) -> str:
 def write_tum(path, stamps: np.ndarray, poses: np.ndarray) -> None:
     """Write :func:`format_tum` to ``path`` atomically (poses ``(n, 4, 4)`` or ``(n, 3, 3)``)."""
     X = np.asarray(poses, dtype=np.float64)
-    _write_text(path, format_tum(stamps, se2.to_se3(X) if X.shape[-1] == 3 else X))
+    write_text_atomic(path, format_tum(stamps, se2.to_se3(X) if X.shape[-1] == 3 else X))
 
 
 def write_kitti(path, poses: np.ndarray) -> None:
     """Write :func:`format_kitti` to ``path`` atomically (poses ``(n, 4, 4)`` or ``(n, 3, 3)``)."""
     X = np.asarray(poses, dtype=np.float64)
-    _write_text(path, format_kitti(se2.to_se3(X) if X.shape[-1] == 3 else X))
-
-
-def _write_text(path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
+    write_text_atomic(path, format_kitti(se2.to_se3(X) if X.shape[-1] == 3 else X))
 
 
 # ---------------------------------------------------------------------------------------------
