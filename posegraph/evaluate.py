@@ -38,7 +38,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from posegraph.errors import InputError
-from posegraph.lie import se2, so2
+from posegraph.lie import so2
+from posegraph.lie.group import embed_in_se3
 
 __all__ = [
     "ErrorStats",
@@ -268,7 +269,7 @@ def evaluate(
     estimate = np.asarray(estimate_poses, dtype=np.float64)[ei]
     reference = np.asarray(reference_poses, dtype=np.float64)[ri]
     if estimate.shape[-1] != reference.shape[-1]:
-        estimate, reference = (se2.to_se3(X) if X.shape[-1] == 3 else X for X in (estimate, reference))
+        estimate, reference = embed_in_se3(estimate), embed_in_se3(reference)
     ate_t, ate_r, alignment = absolute_trajectory_error(estimate, reference, align=align)
     rpe_t, rpe_r = relative_pose_error(estimate, reference)
     return TrajectoryErrors(

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from posegraph.atomic import atomic_path
-from posegraph.lie import se2
+from posegraph.lie.group import embed_in_se3
 
 __all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances",
            "draw_uncertainty_ellipses"]
@@ -81,7 +81,7 @@ def trajectory_figure(
     poses = [graph.poses if X is None else np.asarray(X, dtype=np.float64) for graph, X in zip(graphs, poses)]
     planar = top_view or uncertainty is not None or all(X.shape[-1] == 3 for X in poses)
     if not planar:
-        poses = [se2.to_se3(X) if X.shape[-1] == 3 else X for X in poses]
+        poses = [embed_in_se3(X) for X in poses]
 
     fig = Figure(figsize=size_inches, dpi=dpi)
     FigureCanvasAgg(fig)

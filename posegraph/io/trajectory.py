@@ -31,7 +31,8 @@ import numpy as np
 from posegraph.atomic import write_text_atomic
 from posegraph.errors import InputError, InputWarning
 from posegraph.io.text_input import read_text
-from posegraph.lie import se2, so3
+from posegraph.lie import so3
+from posegraph.lie.group import embed_in_se3
 
 __all__ = [
     "TUM_HEADER",
@@ -97,14 +98,12 @@ def format_kitti(poses: np.ndarray) -> str:
 
 def write_tum(path, stamps: np.ndarray, poses: np.ndarray) -> None:
     """Write :func:`format_tum` to ``path`` atomically (poses ``(n, 4, 4)`` or ``(n, 3, 3)``)."""
-    X = np.asarray(poses, dtype=np.float64)
-    write_text_atomic(path, format_tum(stamps, se2.to_se3(X) if X.shape[-1] == 3 else X))
+    write_text_atomic(path, format_tum(stamps, embed_in_se3(np.asarray(poses, dtype=np.float64))))
 
 
 def write_kitti(path, poses: np.ndarray) -> None:
     """Write :func:`format_kitti` to ``path`` atomically (poses ``(n, 4, 4)`` or ``(n, 3, 3)``)."""
-    X = np.asarray(poses, dtype=np.float64)
-    write_text_atomic(path, format_kitti(se2.to_se3(X) if X.shape[-1] == 3 else X))
+    write_text_atomic(path, format_kitti(embed_in_se3(np.asarray(poses, dtype=np.float64))))
 
 
 # ---------------------------------------------------------------------------------------------

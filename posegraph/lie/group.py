@@ -21,9 +21,11 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Callable
 
+import numpy as np
+
 from posegraph.lie import se2, se3, so2, so3
 
-__all__ = ["LieGroup", "SE3", "SE2"]
+__all__ = ["LieGroup", "SE3", "SE2", "embed_in_se3"]
 
 
 @dataclass(frozen=True)
@@ -120,3 +122,9 @@ SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
 SE2 = LieGroup.of("SE2", se2, 3, 3, rotation_axes=(2,), translation_axes=(0, 1), rotations=so2)
 """Rigid motions in the plane: ``(…, 3, 3)`` matrices, tangent ``[v_x, v_y, ω]``."""
+
+
+def embed_in_se3(poses):
+    """``poses`` as SE(3) matrices: ``(…, 4, 4)`` as they are, SE(2)'s ``(…, 3, 3)`` embedded in the
+    plane z = 0 (:func:`posegraph.lie.se2.to_se3`), for what is written or compared in 3D."""
+    return se2.to_se3(poses) if np.shape(poses)[-1] == 3 else poses

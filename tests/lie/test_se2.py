@@ -110,3 +110,13 @@ def test_to_se3_embeds_in_the_z0_plane():
     np.testing.assert_array_equal(T3[:, :, 2], [[0, 0, 1, 0]] * 2)
     np.testing.assert_array_equal(T3[:, :2, 3], [[1.0, -2.0], [3.0, 4.0]])
     np.testing.assert_allclose(se3.log(T3)[:, :3], [[0, 0, 0.5], [0, 0, -2.0]], atol=1e-15)
+
+
+def test_embed_in_se3_embeds_planar_poses_and_passes_3d_ones_through():
+    from posegraph.lie import se3
+    from posegraph.lie.group import embed_in_se3
+
+    planar = se2.exp(np.array([[0.3, -1.2, 2.5], [1.0, 2.0, -0.4]]))
+    np.testing.assert_array_equal(embed_in_se3(planar), se2.to_se3(planar))
+    spatial = se3.exp(np.array([[0.1, 0.2, 0.3, 1.0, 2.0, 3.0]]))
+    assert embed_in_se3(spatial) is spatial
