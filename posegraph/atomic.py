@@ -10,12 +10,8 @@ the complete new one, never a truncated one.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
-import signal
 import tempfile
-import threading
-from pathlib import Path
 
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "json_text", "StagedOutputs"]
 
@@ -27,7 +23,7 @@ def atomic_path(path, suffix: str | None = None):
     ``suffix`` (default: ``path``'s own suffix) is kept on the temporary name, for writers that
     pick their format from the file name (Open3D, matplotlib). The folder of ``path`` must exist.
     """
-    path = Path(path)
+    path = os.fspath(path)
     tmp = _temporary_beside(path, suffix)
     try:
         yield tmp
@@ -41,12 +37,12 @@ def atomic_path(path, suffix: str | None = None):
         raise
 
 
-def _temporary_beside(path: Path, suffix: str | None) -> str:
+def _temporary_beside(path: str, suffix: str | None) -> str:
     """Create an empty temporary file next to ``path`` and return its name."""
-    folder = path.parent if str(path.parent) else Path(".")
+    folder, name = os.path.split(path)
     try:
         fd, tmp = tempfile.mkstemp(
-            prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=folder
+            prefix=f".{name}.", suffix=_suffix(name) if suffix is None else suffix, dir=folder or "."
         )
     except OSError as exc:  # named by the user's path, not the temporary one
         raise _output_error(path, exc) from exc
@@ -68,7 +64,7 @@ class StagedOutputs:
     """
 
     def __init__(self) -> None:
-        self._staged: list[tuple[str, Path]] = []
+        self._staged: list[tuple[str, str]] = []
 
     def __enter__(self) -> "StagedOutputs":
         return self
@@ -78,15 +74,19 @@ class StagedOutputs:
 
     def stage(self, path, suffix: str | None = None) -> str:
         """A temporary path to write in place of ``path`` (whose folder must exist)."""
-        path = Path(path)
+        path = os.fspath(path)
         tmp = _temporary_beside(path, suffix)
         self._staged.append((tmp, path))
         return tmp
 
     def commit(self) -> None:
+        import signal
+
         interrupted = []
-        in_main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(1)) if in_main else None
+        try:
+            previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(1))
+        except ValueError:  # not the main thread: Ctrl-C does not reach this one anyway
+            previous = None
         try:
             for tmp, path in self._staged:
                 try:
@@ -95,7 +95,7 @@ class StagedOutputs:
                     raise _output_error(path, exc) from exc
             self._staged = []
         finally:
-            if in_main:
+            if previous is not None:
                 signal.signal(signal.SIGINT, previous)
         if interrupted:
             raise KeyboardInterrupt
@@ -107,11 +107,17 @@ class StagedOutputs:
         self._staged = []
 
 
-def _output_error(path: Path, exc: OSError):
+def _suffix(name: str) -> str:
+    """The suffix ``pathlib`` gives ``name``: from its last dot, unless that dot starts or ends the name."""
+    dot = name.rfind(".")
+    return name[dot:] if 0 < dot < len(name) - 1 else ""
+
+
+def _output_error(path: str, exc: OSError):
     """An :class:`~posegraph.errors.OutputError` naming ``path`` (the destination) for ``exc``."""
     from posegraph.errors import OutputError
 
-    return OutputError(f"cannot write the file: {exc.strerror or exc}", path=str(path))
+    return OutputError(f"cannot write the file: {exc.strerror or exc}", path=path)
 
 
 def _umask() -> int:
@@ -134,6 +140,8 @@ def write_json_atomic(path, data, indent: int = 2) -> None:
 
 def json_text(data, indent: int = 2) -> str:
     """``data`` as strict JSON text with a final newline (NaN and infinities as ``null``)."""
+    import json
+
     return json.dumps(_finite(data), indent=indent) + "\n"
 
 

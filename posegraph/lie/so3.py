@@ -39,7 +39,6 @@ divides by ``sin θ`` and stays exact through ``θ = π``.  ``log`` goes through
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 
 import numpy as np
 
@@ -69,43 +68,48 @@ __all__ = [
 _SERIES_ANGLE = 1.0
 _SERIES_TERMS = 10
 
-# Bernoulli numbers B₂, B₄, … for (x/2) cot(x/2) = Σₙ (−1)ⁿ B₂ₙ x²ⁿ/(2n)!.
-_BERNOULLI_EVEN = [Fraction(1, 6), Fraction(-1, 30), Fraction(1, 42), Fraction(-1, 30), Fraction(5, 66),
-                   Fraction(-691, 2730), Fraction(7, 6), Fraction(-3617, 510), Fraction(43867, 798),
-                   Fraction(-174611, 330), Fraction(854513, 138)]
+# Bernoulli numbers B₂, B₄, … for (x/2) cot(x/2) = Σₙ (−1)ⁿ B₂ₙ x²ⁿ/(2n)!, as (numerator, denominator).
+# Every series below is kept as exact integer ratios and rounded once, by int / int (correctly rounded).
+_BERNOULLI_EVEN = [(1, 6), (-1, 30), (1, 42), (-1, 30), (5, 66), (-691, 2730), (7, 6), (-3617, 510),
+                   (43867, 798), (-174611, 330), (854513, 138)]
 
 
-def _taylor(m: int, n: int) -> list[Fraction]:
+def _taylor(m: int, n: int) -> list[tuple[int, int]]:
     """First n coefficients of Σₖ (−1)ᵏ θ²ᵏ / (2k + m)!  (m = 1: A, 2: B, 3: C)."""
-    return [Fraction((-1) ** k, math.factorial(2 * k + m)) for k in range(n)]
+    return [((-1) ** k, math.factorial(2 * k + m)) for k in range(n)]
 
 
-def _half_cot_series(n: int) -> list[Fraction]:
+def _half_cot_series(n: int) -> list[tuple[int, int]]:
     """E = (θ/2) cot(θ/2) = Σₖ (−1)ᵏ B₂ₖ θ²ᵏ / (2k)!  (B₀ = 1)."""
-    bernoulli = [Fraction(1)] + _BERNOULLI_EVEN
-    return [(-1) ** k * bernoulli[k] / math.factorial(2 * k) for k in range(n)]
+    bernoulli = [(1, 1)] + _BERNOULLI_EVEN
+    return [((-1) ** k * p, q * math.factorial(2 * k)) for k, (p, q) in enumerate(bernoulli[:n])]
 
 
-def _d_series(n: int) -> list[Fraction]:
+def _d_series(n: int) -> list[tuple[int, int]]:
     """D = (1 − E)/θ²: minus the series of E shifted by one power of θ²."""
-    return [-c for c in _half_cot_series(n + 1)[1:]]
+    return [(-p, q) for p, q in _half_cot_series(n + 1)[1:]]
 
 
-def _derivative_over_theta(coefficients: list[Fraction]) -> list[Fraction]:
+def _derivative_over_theta(coefficients: list[tuple[int, int]]) -> list[tuple[int, int]]:
     """Series of f'(θ)/θ from the series of f in powers of θ²: Σₖ 2k cₖ θ²ᵏ⁻²."""
-    return [2 * k * c for k, c in enumerate(coefficients)][1:]
+    return [(2 * k * p, q) for k, (p, q) in enumerate(coefficients)][1:]
+
+
+def _rounded(coefficients: list[tuple[int, int]]) -> tuple[float, ...]:
+    """The exact ratios rounded to the nearest doubles."""
+    return tuple(p / q for p, q in coefficients)
 
 
 _N = _SERIES_TERMS + 1  # one more, for the derivative series
-_A_SERIES = tuple(map(float, _taylor(1, _N)[:_SERIES_TERMS]))
-_B_SERIES = tuple(map(float, _taylor(2, _N)[:_SERIES_TERMS]))
-_C_SERIES = tuple(map(float, _taylor(3, _N)[:_SERIES_TERMS]))
-_D_SERIES = tuple(map(float, _d_series(_N)[:_SERIES_TERMS]))
-_E_SERIES = tuple(map(float, _half_cot_series(_SERIES_TERMS)))
-_DB_SERIES = tuple(map(float, _derivative_over_theta(_taylor(2, _N))))  # (dB/dθ)/θ
-_DC_SERIES = tuple(map(float, _derivative_over_theta(_taylor(3, _N))))  # (dC/dθ)/θ
-_DD_SERIES = tuple(map(float, _derivative_over_theta(_d_series(_N))))  # (dD/dθ)/θ
-_DE_SERIES = tuple(map(float, _derivative_over_theta(_half_cot_series(_N))))  # (dE/dθ)/θ
+_A_SERIES = _rounded(_taylor(1, _N)[:_SERIES_TERMS])
+_B_SERIES = _rounded(_taylor(2, _N)[:_SERIES_TERMS])
+_C_SERIES = _rounded(_taylor(3, _N)[:_SERIES_TERMS])
+_D_SERIES = _rounded(_d_series(_N)[:_SERIES_TERMS])
+_E_SERIES = _rounded(_half_cot_series(_SERIES_TERMS))
+_DB_SERIES = _rounded(_derivative_over_theta(_taylor(2, _N)))  # (dB/dθ)/θ
+_DC_SERIES = _rounded(_derivative_over_theta(_taylor(3, _N)))  # (dC/dθ)/θ
+_DD_SERIES = _rounded(_derivative_over_theta(_d_series(_N)))  # (dD/dθ)/θ
+_DE_SERIES = _rounded(_derivative_over_theta(_half_cot_series(_N)))  # (dE/dθ)/θ
 
 
 def _polynomial(theta_sq: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
