@@ -106,6 +106,24 @@ def import_solver_modules() -> None:
     here by :func:`import_scipy_sparse`."""
     single_threaded_blas()
     keep_freed_memory()
+    # These imports make ~30,000 objects that live as long as the process. While they are made,
+    # the collector would traverse them again and again for nothing (some 50 young and 4 older
+    # collections): ~5 ms of every `posegraph optimize` (intel, parking-garage; 16 alternated
+    # processes each), so it is off meanwhile. Then they are frozen (moved out of the collector's
+    # generations): no longer traversed by every full collection, nor collected one by one when
+    # the interpreter shuts down (that teardown took ~30 ms of every `posegraph optimize` on
+    # torus3D, ~12 ms frozen). Objects made later are collected as usual.
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        _import_solver_modules()
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
+
+
+def _import_solver_modules() -> None:
     from posegraph import cholmod
 
     if cholmod.load() is None:
@@ -114,9 +132,3 @@ def import_solver_modules() -> None:
     import posegraph.init  # noqa: F401
     import posegraph.io.g2o  # noqa: F401
     import posegraph.solve  # noqa: F401
-
-    # The ~30,000 objects these imports made live as long as the process. Frozen (moved out of the
-    # garbage collector's generations), they are no longer traversed by every full collection, nor
-    # collected one by one when the interpreter shuts down: that teardown took ~30 ms of every
-    # `posegraph optimize` on torus3D, ~12 ms frozen. Objects made later are collected as usual.
-    gc.freeze()
