@@ -84,15 +84,21 @@ def graph_info(graph) -> dict:
     return info
 
 
-def edge_chi2(graph, poses=None) -> np.ndarray:
-    """``(m,)`` per-edge ``χ²_e = e_eᵀ Ω_e e_e`` at ``poses`` (default the graph's), e the edge residual."""
+def edge_chi2(graph, poses=None, residuals=None) -> np.ndarray:
+    """``(m,)`` per-edge ``χ²_e = e_eᵀ Ω_e e_e`` at ``poses`` (default the graph's), e the edge residual.
+
+    ``residuals`` ``(m, d)``: the residuals at ``poses`` when already known (e.g. an
+    :class:`~posegraph.solve.OptimizeResult`'s ``final_residuals``), else they are evaluated.
+    """
     from posegraph.solve.residuals import edge_residuals, squared_norms
 
-    return squared_norms(edge_residuals(graph.poses if poses is None else poses, graph), graph.information)
+    if residuals is None:
+        residuals = edge_residuals(graph.poses if poses is None else poses, graph)
+    return squared_norms(residuals, graph.information)
 
 
-def chi2_summary(graph, poses=None) -> dict:
-    """χ² of ``graph`` at ``poses`` and what it means.
+def chi2_summary(graph, poses=None, residuals=None) -> dict:
+    """χ² of ``graph`` at ``poses`` and what it means (``residuals``: as in :func:`edge_chi2`).
 
     Keys: ``cost`` (½χ², the optimiser's cost and gtsam's ``error``), ``chi2`` (Σ eᵀΩe, g2o's
     ``chi2``), ``dof`` = d·edges − d·free poses (d the tangent dimension, the information matrices'
@@ -103,7 +109,7 @@ def chi2_summary(graph, poses=None) -> dict:
     """
     from posegraph.graph import held_vertices
 
-    chi2 = edge_chi2(graph, poses)
+    chi2 = edge_chi2(graph, poses, residuals)
     d = graph.information.shape[-1]
     held = held_vertices(graph)
     dof = d * graph.num_edges - d * (graph.num_vertices - int(np.count_nonzero(held)))

@@ -177,6 +177,27 @@ def test_fill_reducing_orders_are_permutations_that_eliminate_an_arrow_hub_last(
     assert order[-1] == 0  # eliminating the hub first would fill the whole matrix
 
 
+@pytest.mark.parametrize("method", ["amd", "nesdis"])
+def test_an_order_is_remembered_for_the_same_pattern_in_either_storage(method, monkeypatch):
+    """The chordal start (both triangles) and the solver (lower) order the same vertex graph once."""
+    matrix = random_spd(3, n=80)[0]
+    made = []
+    compute = {"amd": "_approximate_minimum_degree", "nesdis": "_nested_dissection"}[method]
+    original = getattr(cholmod, compute)
+    monkeypatch.setattr(cholmod, compute, lambda *args: made.append(1) or original(*args))
+    monkeypatch.setattr(cholmod, "_LAST_ORDERS", {})
+    first = cholmod.fill_reducing_order(*csc(matrix)[:2], 80, method)
+    again = cholmod.fill_reducing_order(*csc(np.tril(matrix))[:2], 80, method)
+    np.testing.assert_array_equal(first, again)
+    assert len(made) == 1
+    again[:] = 0  # the caller's copy: the remembered order is untouched
+    np.testing.assert_array_equal(cholmod.fill_reducing_order(*csc(matrix)[:2], 80, method), first)
+    other = matrix.copy()
+    other[5, 70] = other[70, 5] = 1.0  # one more edge: ordered anew
+    cholmod.fill_reducing_order(*csc(other)[:2], 80, method)
+    assert len(made) == 2
+
+
 def test_block_permutation_keeps_each_block_together_in_the_given_order():
     np.testing.assert_array_equal(cholmod.block_permutation([2, 0, 1], 3), [6, 7, 8, 0, 1, 2, 3, 4, 5])
     with pytest.raises(ValueError, match="method"):

@@ -86,7 +86,8 @@ def run(args) -> int:
            f"{stop_reason(result, params)}")
     weights = final_weights(held, args, result, robust)
     inliers = output_graph(held, weights, drop=True)  # robust: χ² and covariances over the edges kept
-    chi2 = chi2_summary(inliers, result.poses)
+    # the solver's last residuals are those of `inliers` unless the robust path dropped edges
+    chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances)
     if not args.quiet:

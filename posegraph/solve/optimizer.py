@@ -306,6 +306,7 @@ class _Run:
             records=records,
             seconds_setup=self.seconds_setup,
             seconds_total=time.perf_counter() - start,
+            final_residuals=self.evaluation.residuals,
         )
 
 

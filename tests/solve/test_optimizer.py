@@ -205,6 +205,21 @@ def test_records_are_consistent_and_lm_cost_never_increases():
     assert result.seconds_total >= result.seconds_linearize + result.seconds_factorize
 
 
+@pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
+@pytest.mark.parametrize("max_iterations", [1, 100])
+def test_final_residuals_are_the_residuals_at_the_returned_poses(group, max_iterations):
+    from posegraph.report import chi2_summary
+    from posegraph.solve.residuals import edge_residuals
+
+    graph = synthetic_graph(6, noise=0.1, group=group)
+    result = optimize(graph, initial="file", params=SolverParams(max_iterations=max_iterations))
+    assert result.final_residuals.shape == (graph.num_edges, group.dim)
+    np.testing.assert_array_equal(result.final_residuals, edge_residuals(result.poses, graph))
+    given = chi2_summary(graph, result.poses, result.final_residuals)
+    assert given == chi2_summary(graph, result.poses)
+    assert given["cost"] == pytest.approx(result.final_cost, rel=1e-12)
+
+
 def test_maximum_iterations_and_callback_stop():
     graph = synthetic_graph(5)
     result = optimize(graph, initial="file", params=SolverParams(max_iterations=2))
