@@ -17,13 +17,13 @@ pose (the start's, or the file's in the chordal solve) — no edge of positive w
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from posegraph.graph import EdgeSource, PoseGraph
+from posegraph.graph import EdgeSource, PoseGraph, held_vertices
 
-__all__ = ["edge_subgraph", "ActiveEdgeSolves"]
+__all__ = ["edge_subgraph", "ActiveEdgeSolves", "AnalysedEdges", "DEFAULT_REANALYSE_FRACTION"]
 
 
 def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None = None) -> PoseGraph:
@@ -50,8 +50,26 @@ def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None
     return sub
 
 
+DEFAULT_REANALYSE_FRACTION = 0.0
+"""Default of :class:`ActiveEdgeSolves`' ``reanalyse_fraction`` (module docstring; chosen from
+the measurements in ``docs/robust.md``)."""
+
+
+@dataclass(frozen=True, eq=False)
+class AnalysedEdges:
+    """A symbolic analysis and the edge set ``S`` it was made for."""
+
+    edges: np.ndarray
+    """``(m,)`` bool over the whole graph's edges: ``S``."""
+    graph: PoseGraph
+    """The graph of the edges ``S`` (:func:`edge_subgraph`, information as in the file)."""
+    analysis: object
+    """What was analysed for ``graph``: a chordal problem or a solver ``Analysis``."""
+
+
 class ActiveEdgeSolves:
-    """Chordal and Levenberg-Marquardt solves of ``graph`` weighted by ``w``, over the edges with ``w > 0``.
+    """Chordal and Levenberg-Marquardt solves of ``graph`` weighted by ``w``, over analysed supersets
+    of the edges with ``w > 0`` (module docstring).
 
     Parameters
     ----------
@@ -59,47 +77,79 @@ class ActiveEdgeSolves:
     params : SolverParams, optional
         The Levenberg-Marquardt solves' parameters (its ``linear_solver`` also for the chordal
         solves); ``params.loss`` must be None (the weights are the robust part).
+    reanalyse_fraction : float in [0, 1]
+        An analysis made for the edge set ``S`` serves the active set ``A`` (``w > 0``) while
+        ``A ⊆ S`` and ``|A| ≥ reanalyse_fraction · |S|``; else a new one is made for ``S = A``.
+        0: re-analyse only when an edge outside ``S`` becomes active; 1: whenever ``A`` changes.
     """
 
-    def __init__(self, graph: PoseGraph, params=None):
+    def __init__(self, graph: PoseGraph, params=None, *, reanalyse_fraction: float = DEFAULT_REANALYSE_FRACTION):
         from posegraph.solve import SolverParams
 
         self.graph = graph
         self.params = SolverParams() if params is None else params
         if self.params.loss is not None:
             raise ValueError("weighted solves take SolverParams with loss=None")
-        self._chordal = (None, None)  # (active-edge key, analysed chordal problem)
-        self._solver = (None, None)  # (active-edge key, solver Analysis)
+        if not 0.0 <= reanalyse_fraction <= 1.0:
+            raise ValueError(f"reanalyse_fraction must be in [0, 1], got {reanalyse_fraction!r}")
+        self.reanalyse_fraction = float(reanalyse_fraction)
+        self._chordal: AnalysedEdges | None = None
+        self._solver: AnalysedEdges | None = None
         self.analyses = 0
         """Symbolic analyses made (chordal and solver)."""
 
-    def subgraph(self, weights: np.ndarray) -> tuple[bytes, PoseGraph]:
-        """``(key, weighted subgraph)`` of the edges with ``weights > 0``; ``key`` names the edge set."""
-        weights = np.asarray(weights, dtype=np.float64)
-        if weights.shape != (self.graph.num_edges,):
-            raise ValueError(f"weights must have shape ({self.graph.num_edges},), got {weights.shape}")
-        if not np.all(np.isfinite(weights) & (weights >= 0)):
-            raise ValueError("weights must be finite and >= 0")
-        active = weights > 0
-        return np.packbits(active).tobytes(), edge_subgraph(self.graph, np.flatnonzero(active), weights)
+    def serves(self, analysed: AnalysedEdges | None, active: np.ndarray) -> bool:
+        """Whether ``analysed`` serves the active edges ``active`` ``(m,)`` bool under the policy."""
+        if analysed is None or np.any(active & ~analysed.edges):
+            return False
+        return np.count_nonzero(active) >= self.reanalyse_fraction * np.count_nonzero(analysed.edges)
 
     def chordal(self, weights: np.ndarray) -> np.ndarray:
         """``(n, 4, 4)`` chordal start of the weighted graph (:func:`posegraph.init.chordal_initialization`)."""
         from posegraph.init.chordal import chordal_initialization, chordal_problem
 
-        key, sub = self.subgraph(weights)
-        if self._chordal[0] != key:
-            self._chordal = (key, chordal_problem(sub, self.params.linear_solver))
-            self.analyses += 1
-        return chordal_initialization(sub, problem=self._chordal[1])
+        weights, active = self._checked(weights)
+        self._chordal = self._analysed(self._chordal, active, lambda sub: chordal_problem(sub, self.params.linear_solver))
+        weighted, counted, held = self._restriction(self._chordal, weights, active)
+        problem = self._chordal.analysis if held is None else self._chordal.analysis.restricted(counted, held)
+        return chordal_initialization(weighted, problem=problem)
 
     def least_squares(self, start: np.ndarray, weights: np.ndarray, callback=None):
         """:class:`~posegraph.solve.OptimizeResult` of LM on the weighted graph from ``start`` ``(n, 4, 4)``."""
         from posegraph.solve import analyze, optimize
 
-        key, sub = self.subgraph(weights)
-        if self._solver[0] != key:
-            self._solver = (key, analyze(sub, self.params))
-            self.analyses += 1
+        weights, active = self._checked(weights)
+        self._solver = self._analysed(self._solver, active, lambda sub: analyze(sub, self.params))
+        weighted, _, held = self._restriction(self._solver, weights, active)
         params = self.params if callback is None else replace(self.params, callback=callback)
-        return optimize(sub, initial=start, params=params, analysis=self._solver[1])
+        return optimize(weighted, initial=start, params=params, analysis=self._solver.analysis, hold=held)
+
+    def _checked(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(weights (m,) float, active (m,) bool)``, after checking shape and values."""
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (self.graph.num_edges,):
+            raise ValueError(f"weights must have shape ({self.graph.num_edges},), got {weights.shape}")
+        if not np.all(np.isfinite(weights) & (weights >= 0)):
+            raise ValueError("weights must be finite and >= 0")
+        return weights, weights > 0
+
+    def _analysed(self, current: AnalysedEdges | None, active: np.ndarray, analyse) -> AnalysedEdges:
+        """``current`` if it :meth:`serves` ``active``, else ``analyse(graph of the active edges)``."""
+        if self.serves(current, active):
+            return current
+        sub = edge_subgraph(self.graph, np.flatnonzero(active))
+        self.analyses += 1
+        return AnalysedEdges(active.copy(), sub, analyse(sub))
+
+    def _restriction(self, analysed: AnalysedEdges, weights: np.ndarray, active: np.ndarray):
+        """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None)`` for a solve over
+        ``S`` in which only the active edges count; ``held``: the vertices the graph of the active
+        edges holds (:func:`posegraph.graph.held_vertices`: fixed, one anchor per component), None
+        when every edge of ``S`` is active."""
+        keep = np.flatnonzero(analysed.edges)
+        information = analysed.graph.information * weights[keep][:, None, None]
+        weighted = replace(analysed.graph, information=information, edge_source=None)
+        counted = active[keep]
+        if counted.all():
+            return weighted, counted, None
+        return weighted, counted, held_vertices(edge_subgraph(analysed.graph, np.flatnonzero(counted)))
