@@ -1,4 +1,5 @@
-"""``optimize``'s robust options: ``--robust``, ``--robust-scale``, ``--known-inliers``, ``--drop-outliers``.
+"""``optimize``'s robust options: ``--robust``, ``--robust-scale``, ``--known-inliers``, ``--drop-outliers``,
+``--reanalyse-fraction``.
 
 ``--robust NAME`` with an M-estimator (``huber``, ``cauchy``, ``geman-mcclure``, ``tukey``,
 ``dcs``, ``tls``) gives the solver that loss (:func:`posegraph.robust.make_loss`, scale
@@ -17,6 +18,17 @@ import sys
 
 from posegraph.cli.common import positive_float
 
+
+def unit_fraction(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
+    return value
+
 ROBUST_CHOICES = ("none", "huber", "cauchy", "geman-mcclure", "tukey", "dcs", "tls", "gnc")
 """``--robust`` values: no loss, the six M-estimators, or graduated non-convexity."""
 
@@ -25,7 +37,7 @@ OUTLIER_WEIGHT = 0.5
 
 
 def robust_options(p: argparse.ArgumentParser) -> None:
-    """Add the four robust options to ``p``."""
+    """Add the five robust options to ``p``."""
     p.add_argument("--robust", choices=ROBUST_CHOICES, default="none", metavar="{" + ",".join(ROBUST_CHOICES) + "}",
                    help="robust loss on every edge, or gnc: graduated non-convexity with truncated least squares "
                         "from a start that wrong loop closures do not corrupt (default none: least squares)")
@@ -36,6 +48,9 @@ def robust_options(p: argparse.ArgumentParser) -> None:
                    help="gnc: edges never rejected (default odometry: consecutive vertex ids)")
     p.add_argument("--drop-outliers", action="store_true",
                    help="write OUT without the edges judged outliers (final weight below 0.5)")
+    p.add_argument("--reanalyse-fraction", type=unit_fraction, default=None, metavar="F",
+                   help="gnc: analyse the sparsity anew when the edges of nonzero weight fall below F times the "
+                        "analysed ones (default 0.98; 0: only when an edge outside them comes back; 1: on every change)")
 
 
 def check_robust_options(args) -> None:
@@ -46,6 +61,8 @@ def check_robust_options(args) -> None:
         raise UsageError("--drop-outliers needs a robust loss (--robust NAME)")
     if args.robust_scale is not None and args.robust == "none":
         raise UsageError("--robust-scale needs a robust loss (--robust NAME)")
+    if args.reanalyse_fraction is not None and args.robust != "gnc":
+        raise UsageError("--reanalyse-fraction needs --robust gnc")
     if args.drop_outliers and "-" not in (args.input, args.output) and os.path.exists(args.output) and os.path.samefile(args.output, args.input):
         raise UsageError(f"--drop-outliers never overwrites the input {args.input}: choose another OUT")
 
@@ -70,7 +87,8 @@ def run_gnc(graph, start, params, args, status):
         stage = "tls" if math.isinf(record.mu) else "gnc"
         status(f"  {stage} {record.iteration:3d}  mu {record.mu:.3g}  inliers {record.inliers}  cost {record.cost:.10e}")
 
-    return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress)
+    fraction = {} if args.reanalyse_fraction is None else {"reanalyse_fraction": args.reanalyse_fraction}
+    return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress, **fraction)
 
 
 def final_weights(graph, args, result, robust):

@@ -24,6 +24,13 @@ analyses it once — the CSC pattern, where each per-edge block entry lands in i
 symbolic factorisation — and each :meth:`~RelativeLeastSquares.solve` only refills the values
 (the rotation and translation stages share one analysis).
 
+:meth:`~RelativeLeastSquares.restricted` serves a sub-problem from the same analysis: only some
+edges count (the others get ``W = 0``, ``g = 0``: zero values in the analysed pattern) and more
+vertices are held (each extra held vertex keeps its analysed variable, with a unit diagonal block,
+no coupling and a zero right-hand side; its edges to free vertices move to their right-hand sides
+as for any held vertex). Its solution equals that of the problem analysed for the counted edges
+and the larger held set, up to round-off (another elimination order).
+
 This module depends on :mod:`posegraph.cholmod` (scipy only on the SuperLU path), not on
 :mod:`posegraph.solve`: initialisation comes before the solver in the data flow. Every numerical
 failure of either backend (a matrix not positive definite to working precision, an overflow)
@@ -93,6 +100,35 @@ class RelativeLeastSquares:
         self.both_free = self.free_from & self.free_to
         self._cholesky = None  # CHOLMOD's analysis, made at the first factorisation
         self._analyse_pattern()
+        # Which blocks the pattern stores (the analysed free sets) and what a restriction changes:
+        self._layout = (self.free_from, self.free_to, self.both_free)
+        self._counted = None  # (m,) bool: edges whose terms count; None: all
+        self._pinned = np.zeros(0, dtype=np.int64)  # data positions of extra held vertices' diagonals
+
+    def restricted(self, counted_edges: np.ndarray, held: np.ndarray) -> "RelativeLeastSquares":
+        """This problem over the edges ``counted_edges`` ``(m,)`` bool only, holding ``held | self.held``
+        ``(n,)`` bool: a view sharing the analysis (pattern, CHOLMOD's symbolic factorisation).
+
+        Every component of the counted edges must contain a held vertex (e.g. ``held`` from
+        :func:`posegraph.graph.held_vertices` of the graph of the counted edges), else the system is
+        singular. See the module docstring.
+        """
+        import copy
+
+        counted_edges = np.asarray(counted_edges, dtype=bool)
+        held = np.asarray(held, dtype=bool) | self.held
+        if counted_edges.shape != self.edge_from.shape or held.shape != self.held.shape:
+            raise ValueError("counted_edges must have shape (m,) and held (n,)")
+        if self.linear_solver != "scipy" and self._cholesky is None and cholmod_library.load() is not None:
+            self._cholesky = self._symbolic()  # made once here, so that every view shares it
+        view = copy.copy(self)
+        view.held, view._counted = held, counted_edges
+        free = ~held
+        view.free_from, view.free_to = free[self.edge_from], free[self.edge_to]
+        view.both_free = view.free_from & view.free_to
+        pinned = self.variable[held & ~self.held]
+        view._pinned = self._diagonal_positions[pinned].ravel()
+        return view
 
     def _analyse_pattern(self) -> None:
         """CSC pattern of H and the CSC position of every per-edge block entry (see :meth:`_matrix`).
@@ -130,17 +166,29 @@ class RelativeLeastSquares:
         # the vertex pattern (both triangles), for ordering the blocks (posegraph.cholmod.fill_reducing_order)
         self._block_indptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
         self._block_rows = rows.astype(np.int32)
+        # (p, r) positions of the diagonal entries of each variable's diagonal block (every free
+        # vertex has one: a free vertex without edges would be its own component's anchor)
+        diagonal_blocks = np.flatnonzero(rows == cols)
+        self._diagonal_positions = np.zeros((p, r), dtype=np.int64)
+        self._diagonal_positions[cols[diagonal_blocks]] = position[diagonal_blocks][:, axis, axis]
 
     def _matrix(self, transfer: np.ndarray, weight_transfer: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """CSC ``data`` of H (both triangles) with its per-edge blocks ``W``, ``PᵀWP``, ``−WP``,
-        ``−PᵀW`` summed into the fixed pattern ``(self._indptr, self._indices)``."""
+        ``−PᵀW`` summed into the fixed pattern ``(self._indptr, self._indices)``.
+
+        The pattern has a slot for each block of the analysed free sets (``self._layout``); a block
+        touching a vertex held only by :meth:`restricted` gets zeros there, and such a vertex's
+        diagonal block is the identity."""
+        layout_from, layout_to, layout_both = self._layout
         blocks = [
-            weight[self.free_to],
-            transfer[self.free_from].transpose(0, 2, 1) @ weight_transfer[self.free_from],
-            -weight_transfer[self.both_free],
-            -weight_transfer[self.both_free].transpose(0, 2, 1),
+            weight[layout_to] * self.free_to[layout_to, None, None],
+            transfer[layout_from].transpose(0, 2, 1) @ weight_transfer[layout_from] * self.free_from[layout_from, None, None],
+            -weight_transfer[layout_both] * self.both_free[layout_both, None, None],
+            -weight_transfer[layout_both].transpose(0, 2, 1) * self.both_free[layout_both, None, None],
         ]
-        return np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
+        data = np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
+        data[self._pinned] = 1.0
+        return data
 
     def solve(
         self,
@@ -161,6 +209,10 @@ class RelativeLeastSquares:
         k = values.shape[-1]
         if self.num_free == 0:
             return values
+        if self._counted is not None:  # edges that do not count: W = 0, g = 0
+            weight = weight * self._counted[:, None, None]
+            if weighted_offset is not None:
+                weighted_offset = weighted_offset * self._counted[:, None, None]
         i, j, var = self.edge_from, self.edge_to, self.variable
         free_i, free_j = self.free_from, self.free_to
         weight_transfer = weight @ transfer  # W P
@@ -177,7 +229,7 @@ class RelativeLeastSquares:
         np.add.at(rhs, var[i[only_i]], weight_transfer[only_i].transpose(0, 2, 1) @ values[j[only_i]])
 
         free = ~self.held
-        values[free] = solve(rhs.reshape(-1, k)).reshape(shape)
+        values[free] = solve(rhs.reshape(-1, k)).reshape(shape)[var[free]]
         for _ in range(refinement_steps):
             # Iterative refinement from the edges' own residuals rather than b − H x, in which two
             # large terms nearly cancel: the gradient is evaluated from edge differences
@@ -189,7 +241,7 @@ class RelativeLeastSquares:
             gradient = np.zeros(shape)
             np.add.at(gradient, var[j[free_j]], pull[free_j])
             np.add.at(gradient, var[i[free_i]], -(transfer[free_i].transpose(0, 2, 1) @ pull[free_i]))
-            values[free] -= solve(gradient.reshape(-1, k)).reshape(shape)
+            values[free] -= solve(gradient.reshape(-1, k)).reshape(shape)[var[free]]
         return values
 
     def _csc(self, data: np.ndarray):
@@ -220,14 +272,18 @@ class RelativeLeastSquares:
 
         return finite_solve
 
+    def _symbolic(self):
+        """CHOLMOD's factorisation object for the pattern: ordering and symbolic analysis."""
+        return cholmod_library.block_cholesky(
+            self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, self.block,
+            threads=self.threads,
+        )  # fmt: skip
+
     def _cholmod_solve(self, data: np.ndarray):
         """CHOLMOD's solve for the matrix (analysed at the first call), or None when it is not
         positive definite and ``"auto"`` may fall back to SuperLU."""
         if self._cholesky is None:
-            self._cholesky = cholmod_library.block_cholesky(
-                self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, self.block,
-                threads=self.threads,
-            )  # fmt: skip
+            self._cholesky = self._symbolic()
         try:
             self._cholesky.factorize(data)
         except NotPositiveDefiniteError:

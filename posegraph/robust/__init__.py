@@ -6,8 +6,8 @@
 * :mod:`posegraph.robust.gnc` — the GNC outer loop (Yang, Antonante, Tzoumas & Carlone, RA-L 2020)
   over any weighted least-squares solver, as gtsam's ``GncOptimizer``.
 * :mod:`posegraph.robust.starts` — starts that outliers do not corrupt (robust chordal).
-* :mod:`posegraph.robust.active` — weighted solves over the edges of nonzero weight, analysed
-  once per edge set.
+* :mod:`posegraph.robust.active` — weighted solves that keep one symbolic analysis while edges
+  drop out (weight 0).
 * :mod:`posegraph.robust.pipeline` — :func:`optimize_robust`: robust chordal start, then truncated
   least squares over Levenberg-Marquardt.
 

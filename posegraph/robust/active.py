@@ -1,29 +1,36 @@
-"""Weighted least-squares solves over the edges with nonzero weight, analysed once per edge set.
+"""Weighted least-squares solves that keep one symbolic analysis while edges drop out.
 
 GNC and IRLS solve one graph many times with new per-edge weights ``w`` (cost ``½ Σ w eᵀΩe``).
-An edge of weight 0 contributes nothing to that cost, but left in the system its long, random
-"loop closure" still fills the Cholesky factor: on sphere2500 with 490 random outliers a chordal
-factorisation of all edges took 78 ms, of the edges still weighted ~10 ms. So each solve here
-runs on the subgraph of the edges with ``w > 0`` (information scaled by ``w``), and the symbolic
-work — the chordal system's pattern and factorisation analysis
+The symbolic work of a solve — the chordal system's pattern and CHOLMOD analysis
 (:func:`posegraph.init.chordal.chordal_problem`), the solver's Hessian pattern and linear solver
-(:func:`posegraph.solve.analyze`) — is made when that edge set changes and reused while it does
-not (in GNC it settles after a few outer iterations: on sphere2500 + 20 % outliers, 12 distinct
-edge sets in 24 iterations).
+(:func:`posegraph.solve.analyze`) — depends only on the edge set. :class:`ActiveEdgeSolves` makes
+it for an edge set ``S`` and serves every later *active* set ``A = {w > 0} ⊆ S`` from it: the
+solve runs over ``S`` with the edges of ``S \ A`` at weight 0 (zero values in the analysed
+pattern), and a vertex that the active edges leave without a held vertex in its component — e.g.
+one whose every edge has weight 0 — is held at its pose (the start's in LM, the file's in the
+chordal solve), exactly as in the subgraph of the active edges, whose problem is solved (round-off
+aside: another elimination order). Mechanisms: :meth:`posegraph.init.linear_system.RelativeLeastSquares.restricted`
+and ``optimize(..., hold=)`` (:class:`posegraph.solve.sparsity.PinnedVariables`).
 
-A vertex whose every edge has weight 0 is its own component in the subgraph: it is held at its
-pose (the start's, or the file's in the chordal solve) — no edge of positive weight constrains it.
+A new analysis is made for ``S = A`` when an edge outside ``S`` becomes active, or when
+``|A| < reanalyse_fraction · |S|``: an edge of weight 0 adds nothing to the cost, but left in the
+pattern its long, random "loop closure" still fills the Cholesky factor (torus3D + 20 % outliers:
+97 ms per chordal factorisation over all edges against 21 ms over the weighted ones), and the
+analysis itself costs a few ms (CHOLMOD's symbolic factorisation ~3 ms there). ``reanalyse_fraction = 0`` analyses once (the first solve of GNC
+weighs every edge), ``1`` on every change of ``A``; the default
+:data:`DEFAULT_REANALYSE_FRACTION` = 0.98 was the fastest end to end (``docs/robust.md``, "Symbolic
+analyses across outer iterations").
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from posegraph.graph import EdgeSource, PoseGraph
+from posegraph.graph import EdgeSource, PoseGraph, held_vertices
 
-__all__ = ["edge_subgraph", "ActiveEdgeSolves"]
+__all__ = ["edge_subgraph", "ActiveEdgeSolves", "AnalysedEdges", "DEFAULT_REANALYSE_FRACTION"]
 
 
 def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None = None) -> PoseGraph:
@@ -50,8 +57,28 @@ def edge_subgraph(graph: PoseGraph, keep: np.ndarray, weights: np.ndarray | None
     return sub
 
 
+DEFAULT_REANALYSE_FRACTION = 0.98
+"""Default of :class:`ActiveEdgeSolves`' ``reanalyse_fraction``. Measured (``docs/robust.md``) on
+sphere2500, parking-garage and torus3D + 20 % outliers, whole ``--robust gnc`` process: 0.98 and 1
+(re-analyse on every change) tie for fastest (1.3 / 1.2 / 2.9–3.1 s: within 4 %, either way), 0.98 with 5–7 analyses instead
+of 13–17; analysing once (0) took 1.4–2.5 × as long (2.0 / 1.9 / 7.2 s), the outliers' fill."""
+
+
+@dataclass(frozen=True, eq=False)
+class AnalysedEdges:
+    """A symbolic analysis and the edge set ``S`` it was made for."""
+
+    edges: np.ndarray
+    """``(m,)`` bool over the whole graph's edges: ``S``."""
+    graph: PoseGraph
+    """The graph of the edges ``S`` (:func:`edge_subgraph`, information as in the file)."""
+    analysis: object
+    """What was analysed for ``graph``: a chordal problem or a solver ``Analysis``."""
+
+
 class ActiveEdgeSolves:
-    """Chordal and Levenberg-Marquardt solves of ``graph`` weighted by ``w``, over the edges with ``w > 0``.
+    """Chordal and Levenberg-Marquardt solves of ``graph`` weighted by ``w``, over analysed supersets
+    of the edges with ``w > 0`` (module docstring).
 
     Parameters
     ----------
@@ -59,47 +86,79 @@ class ActiveEdgeSolves:
     params : SolverParams, optional
         The Levenberg-Marquardt solves' parameters (its ``linear_solver`` also for the chordal
         solves); ``params.loss`` must be None (the weights are the robust part).
+    reanalyse_fraction : float in [0, 1]
+        An analysis made for the edge set ``S`` serves the active set ``A`` (``w > 0``) while
+        ``A ⊆ S`` and ``|A| ≥ reanalyse_fraction · |S|``; else a new one is made for ``S = A``.
+        0: re-analyse only when an edge outside ``S`` becomes active; 1: whenever ``A`` changes.
     """
 
-    def __init__(self, graph: PoseGraph, params=None):
+    def __init__(self, graph: PoseGraph, params=None, *, reanalyse_fraction: float = DEFAULT_REANALYSE_FRACTION):
         from posegraph.solve import SolverParams
 
         self.graph = graph
         self.params = SolverParams() if params is None else params
         if self.params.loss is not None:
             raise ValueError("weighted solves take SolverParams with loss=None")
-        self._chordal = (None, None)  # (active-edge key, analysed chordal problem)
-        self._solver = (None, None)  # (active-edge key, solver Analysis)
+        if not 0.0 <= reanalyse_fraction <= 1.0:
+            raise ValueError(f"reanalyse_fraction must be in [0, 1], got {reanalyse_fraction!r}")
+        self.reanalyse_fraction = float(reanalyse_fraction)
+        self._chordal: AnalysedEdges | None = None
+        self._solver: AnalysedEdges | None = None
         self.analyses = 0
         """Symbolic analyses made (chordal and solver)."""
 
-    def subgraph(self, weights: np.ndarray) -> tuple[bytes, PoseGraph]:
-        """``(key, weighted subgraph)`` of the edges with ``weights > 0``; ``key`` names the edge set."""
-        weights = np.asarray(weights, dtype=np.float64)
-        if weights.shape != (self.graph.num_edges,):
-            raise ValueError(f"weights must have shape ({self.graph.num_edges},), got {weights.shape}")
-        if not np.all(np.isfinite(weights) & (weights >= 0)):
-            raise ValueError("weights must be finite and >= 0")
-        active = weights > 0
-        return np.packbits(active).tobytes(), edge_subgraph(self.graph, np.flatnonzero(active), weights)
+    def serves(self, analysed: AnalysedEdges | None, active: np.ndarray) -> bool:
+        """Whether ``analysed`` serves the active edges ``active`` ``(m,)`` bool under the policy."""
+        if analysed is None or np.any(active & ~analysed.edges):
+            return False
+        return np.count_nonzero(active) >= self.reanalyse_fraction * np.count_nonzero(analysed.edges)
 
     def chordal(self, weights: np.ndarray) -> np.ndarray:
         """``(n, 4, 4)`` chordal start of the weighted graph (:func:`posegraph.init.chordal_initialization`)."""
         from posegraph.init.chordal import chordal_initialization, chordal_problem
 
-        key, sub = self.subgraph(weights)
-        if self._chordal[0] != key:
-            self._chordal = (key, chordal_problem(sub, self.params.linear_solver))
-            self.analyses += 1
-        return chordal_initialization(sub, problem=self._chordal[1])
+        weights, active = self._checked(weights)
+        self._chordal = self._analysed(self._chordal, active, lambda sub: chordal_problem(sub, self.params.linear_solver))
+        weighted, counted, held = self._restriction(self._chordal, weights, active)
+        problem = self._chordal.analysis if held is None else self._chordal.analysis.restricted(counted, held)
+        return chordal_initialization(weighted, problem=problem)
 
     def least_squares(self, start: np.ndarray, weights: np.ndarray, callback=None):
         """:class:`~posegraph.solve.OptimizeResult` of LM on the weighted graph from ``start`` ``(n, 4, 4)``."""
         from posegraph.solve import analyze, optimize
 
-        key, sub = self.subgraph(weights)
-        if self._solver[0] != key:
-            self._solver = (key, analyze(sub, self.params))
-            self.analyses += 1
+        weights, active = self._checked(weights)
+        self._solver = self._analysed(self._solver, active, lambda sub: analyze(sub, self.params))
+        weighted, _, held = self._restriction(self._solver, weights, active)
         params = self.params if callback is None else replace(self.params, callback=callback)
-        return optimize(sub, initial=start, params=params, analysis=self._solver[1])
+        return optimize(weighted, initial=start, params=params, analysis=self._solver.analysis, hold=held)
+
+    def _checked(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(weights (m,) float, active (m,) bool)``, after checking shape and values."""
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (self.graph.num_edges,):
+            raise ValueError(f"weights must have shape ({self.graph.num_edges},), got {weights.shape}")
+        if not np.all(np.isfinite(weights) & (weights >= 0)):
+            raise ValueError("weights must be finite and >= 0")
+        return weights, weights > 0
+
+    def _analysed(self, current: AnalysedEdges | None, active: np.ndarray, analyse) -> AnalysedEdges:
+        """``current`` if it :meth:`serves` ``active``, else ``analyse(graph of the active edges)``."""
+        if self.serves(current, active):
+            return current
+        sub = edge_subgraph(self.graph, np.flatnonzero(active))
+        self.analyses += 1
+        return AnalysedEdges(active.copy(), sub, analyse(sub))
+
+    def _restriction(self, analysed: AnalysedEdges, weights: np.ndarray, active: np.ndarray):
+        """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None)`` for a solve over
+        ``S`` in which only the active edges count; ``held``: the vertices the graph of the active
+        edges holds (:func:`posegraph.graph.held_vertices`: fixed, one anchor per component), None
+        when every edge of ``S`` is active."""
+        keep = np.flatnonzero(analysed.edges)
+        information = analysed.graph.information * weights[keep][:, None, None]
+        weighted = replace(analysed.graph, information=information, edge_source=None)
+        counted = active[keep]
+        if counted.all():
+            return weighted, counted, None
+        return weighted, counted, held_vertices(edge_subgraph(analysed.graph, np.flatnonzero(counted)))

@@ -48,7 +48,9 @@ from posegraph.solve.linear import NotPositiveDefiniteError, make_linear_solver
 from posegraph.solve.objective import Evaluation, Objective
 from posegraph.solve.params import SolverParams
 from posegraph.solve.result import IterationRecord, OptimizeResult
-from posegraph.solve.sparsity import HessianPattern, analyze_pattern, gradient_values, hessian_values, lower_matvec
+from posegraph.solve.sparsity import (
+    HessianPattern, PinnedVariables, analyze_pattern, gradient_values, hessian_values, lower_matvec,
+)
 from posegraph.solve.trust_region import (  # noqa: F401  (the termination reasons, re-exported)
     CALLBACK, CONVERGED_ABSOLUTE, CONVERGED_COST, CONVERGED_DECREMENT, CONVERGED_NOTHING, CONVERGED_PREDICTED,
     CONVERGED_RELATIVE, LAMBDA_EXCEEDED, MAX_ITERATIONS, NO_DECREASE, NON_FINITE, NOT_POSITIVE_DEFINITE,
@@ -102,7 +104,12 @@ def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
 
 
 def optimize(
-    graph: PoseGraph, initial=None, params: SolverParams | None = None, *, analysis: Analysis | None = None
+    graph: PoseGraph,
+    initial=None,
+    params: SolverParams | None = None,
+    *,
+    analysis: Analysis | None = None,
+    hold: np.ndarray | None = None,
 ) -> OptimizeResult:
     """Minimise ``½ Σ eᵀ Ω e`` (or ``½ Σ ρ(eᵀΩe)`` with ``params.loss``) over the free poses.
 
@@ -120,6 +127,11 @@ def optimize(
         The symbolic analysis of a graph with the same edges (:func:`analyze`), reused instead of
         made anew (its linear solver, not ``params.linear_solver``, then runs). ``ValueError``
         when its edges differ from ``graph``'s.
+    hold : (n,) bool array, optional
+        Vertices held at their initial pose besides those the analysis holds (their variables stay
+        in the analysed system, decoupled: :class:`~posegraph.solve.sparsity.PinnedVariables`).
+        With the edges of weight 0 that leave them unconstrained, this solves a subgraph's problem
+        over the analysis of a larger edge set.
 
     Returns
     -------
@@ -131,7 +143,7 @@ def optimize(
     params = SolverParams() if params is None else params
     if analysis is not None and not analysis.matches(graph):
         raise ValueError("the analysis was made for other edges than the graph's")
-    run = _Run(graph, _initial_poses(graph, initial), params, analysis)
+    run = _Run(graph, _initial_poses(graph, initial), params, analysis, hold)
     early = run.nothing_to_do()
     if early is not None:
         return run.result(early, [], start)
@@ -218,12 +230,13 @@ class _Outcome:
 class _Run:
     """The state of one :func:`optimize` call: the problem, the current poses and cost, λ, the clock."""
 
-    def __init__(self, graph: PoseGraph, poses: np.ndarray, params: SolverParams, analysis: Analysis | None):
+    def __init__(self, graph: PoseGraph, poses: np.ndarray, params: SolverParams, analysis: Analysis | None, hold=None):
         setup_start = time.perf_counter()
         self.graph, self.params, self.poses = graph, params, poses
         analysis = analyze(graph, params) if analysis is None else analysis
         self.free = ~analysis.held
         self.pattern: HessianPattern = analysis.pattern
+        self.pinned = None if hold is None else PinnedVariables.of(self.pattern, hold)
         self.objective = Objective(graph, params.loss)
         self.evaluation = self.objective.evaluate(poses)
         self.initial_cost = self.evaluation.cost
@@ -256,6 +269,8 @@ class _Run:
             blocks = self.objective.linearize(self.poses, self.evaluation)
         with self.clock.phase("assemble"):
             gradient = gradient_values(self.pattern, blocks.gradient)
+            if self.pinned is not None:
+                self.pinned.zero_gradient(gradient)
         return _System(self, blocks, gradient)
 
     def retract(self, steps: np.ndarray) -> np.ndarray:
@@ -322,7 +337,8 @@ class _System:
         with self.run.clock.phase("linearize"):
             blocks = self.blocks.hessian_blocks
         with self.run.clock.phase("assemble"):
-            return hessian_values(self.run.pattern, blocks)
+            data = hessian_values(self.run.pattern, blocks)
+            return data if self.run.pinned is None else self.run.pinned.decouple(data)
 
 
 def _trust_region_step(run: _Run, system: _System) -> _Outcome:

@@ -32,7 +32,9 @@ import numpy as np
 
 from posegraph.lie.group import SE3
 
-__all__ = ["HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc"]
+__all__ = [
+    "HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc", "PinnedVariables",
+]
 
 BLOCK = SE3.dim
 """The default block size, SE(3)'s tangent dimension (graphs of other groups pass ``group.dim``)."""
@@ -261,6 +263,44 @@ def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray) -> np
     """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(dp,)``."""
     d = pattern.dimension
     return np.bincount(pattern.indices, weights=data * x[pattern.entry_columns], minlength=d)
+
+
+@dataclass(frozen=True, eq=False)
+class PinnedVariables:
+    """Free vertices of a pattern held at their pose after all: their variables stay in the system
+    but decouple from it — unit diagonal, zero off-diagonal entries and zero gradient — so their
+    step is exactly 0 and the other variables solve the system with them eliminated (held)."""
+
+    rows: np.ndarray
+    """``(d·q,)`` rows of ``g`` (and of H) of the ``q`` pinned vertices."""
+    coupling: np.ndarray
+    """``(nnz,)`` bool: entries of ``data`` in a pinned row or column."""
+    diagonal: np.ndarray
+    """``(d·q,)`` positions in ``data`` of the pinned rows' diagonal entries."""
+
+    @classmethod
+    def of(cls, pattern: HessianPattern, vertices: np.ndarray) -> "PinnedVariables":
+        """For ``vertices`` ``(n,)`` bool (vertices the pattern already holds are ignored)."""
+        vertices = np.asarray(vertices, dtype=bool)
+        if vertices.shape != (pattern.num_vertices,):
+            raise ValueError(f"held vertices must have shape ({pattern.num_vertices},), got {vertices.shape}")
+        variables = pattern.variable_of[vertices & (pattern.variable_of >= 0)]
+        rows = (pattern.block_size * variables[:, None] + np.arange(pattern.block_size)).ravel()
+        pinned_row = np.zeros(pattern.dimension, dtype=bool)
+        pinned_row[rows] = True
+        coupling = pinned_row[pattern.indices] | pinned_row[pattern.entry_columns]
+        return cls(rows, coupling, pattern.diagonal[rows])
+
+    def decouple(self, data: np.ndarray) -> np.ndarray:
+        """The lower-triangle ``data`` of H with the pinned rows and columns made unit (in place)."""
+        data[self.coupling] = 0.0
+        data[self.diagonal] = 1.0
+        return data
+
+    def zero_gradient(self, gradient: np.ndarray) -> np.ndarray:
+        """``gradient`` ``(dp,)`` with the pinned rows zeroed (in place)."""
+        gradient[self.rows] = 0.0
+        return gradient
 
 
 def lower_csc(pattern: HessianPattern, data: np.ndarray):

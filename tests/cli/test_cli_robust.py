@@ -45,6 +45,24 @@ def test_gnc_reports_and_drops_exactly_the_outliers(corrupted, tmp_path):
     np.testing.assert_array_equal(source.ids[written.edge_from], source.ids[source.edge_from[keep]])
 
 
+def test_gnc_results_do_not_depend_on_when_the_sparsity_is_analysed(corrupted, tmp_path):
+    """Analyse once (0), on every change of the active edges (1), and the default: the same outliers,
+    the same poses to round-off."""
+    from posegraph.io.g2o import read_g2o
+
+    path, indices = corrupted
+    poses = []
+    for fraction in ("0", "1", None):
+        out, report = tmp_path / f"out_{fraction}.g2o", tmp_path / f"r_{fraction}.json"
+        extra = [] if fraction is None else ["--reanalyse-fraction", fraction]
+        run = run_cli("optimize", path, "-o", out, "--robust", "gnc", "--report", report, "-q", *extra)
+        assert run.returncode == 0, run.stderr
+        assert json.loads(report.read_text())["outlier_edges"] == indices.tolist()
+        poses.append(read_g2o(out).poses)
+    np.testing.assert_allclose(poses[0], poses[1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(poses[2], poses[1], rtol=0, atol=1e-9)
+
+
 def test_without_drop_outliers_every_edge_is_written(corrupted, tmp_path):
     from posegraph.io.g2o import read_g2o
 
@@ -78,6 +96,8 @@ def test_default_report_has_no_robust_fields(corrupted, tmp_path):
         (["--robust", "welsch"], ["--robust", "invalid choice", "gnc"]),
         (["--drop-outliers"], ["--drop-outliers", "--robust"]),
         (["--robust-scale", "2"], ["--robust-scale", "--robust"]),
+        (["--robust", "gnc", "--reanalyse-fraction", "1.5"], ["--reanalyse-fraction", "[0, 1]"]),
+        (["--robust", "huber", "--reanalyse-fraction", "0.5"], ["--reanalyse-fraction", "--robust gnc"]),
     ],
 )
 def test_bad_values_exit_2_with_one_line(corrupted, tmp_path, args, fragments):
