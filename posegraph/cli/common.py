@@ -184,13 +184,12 @@ def check_output(
 def _cannot_create_in(folder: str) -> str:
     """Why no file can be created in ``folder`` ("" if one can): a real attempt, as the writers will
     make (``os.access`` says yes to root on read-only file systems and on ``/proc``)."""
-    import tempfile
+    from posegraph.atomic import create_new_file
 
     try:
-        fd, probe = tempfile.mkstemp(prefix=".posegraph-probe-", dir=folder)
+        probe = create_new_file(folder, ".posegraph-probe-")
     except OSError as exc:
         return exc.strerror or str(exc)
-    os.close(fd)
     os.unlink(probe)
     return ""
 
