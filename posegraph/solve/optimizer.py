@@ -338,7 +338,9 @@ class _System:
             blocks = self.blocks.hessian_blocks
         with self.run.clock.phase("assemble"):
             data = hessian_values(self.run.pattern, blocks)
-            return data if self.run.pinned is None else self.run.pinned.decouple(data)
+        del blocks
+        self.blocks.release_hessian_blocks()  # assembled: H alone is used from here on
+        return data if self.run.pinned is None else self.run.pinned.decouple(data)
 
 
 def _trust_region_step(run: _Run, system: _System) -> _Outcome:
