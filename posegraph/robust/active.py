@@ -20,7 +20,7 @@ analysis itself costs a few ms (CHOLMOD's symbolic factorisation ~3 ms there). T
 ``reanalyse_fraction = 0`` (:data:`DEFAULT_REANALYSE_FRACTION`) analyses once — the first solve of
 GNC weighs every edge, so no outer iteration analyses again — as the robust-optimisation issue
 specifies; ``0.98`` re-analyses when the dropped edges reach 2 % of the pattern, which was
-1.4–2.5 × faster end to end, and ``1`` on every change of ``A`` (``docs/robust.md``, "Symbolic
+1.4–2.5 × faster end to end with 20 % outliers (up to 4 × with 50–80 %), and ``1`` on every change of ``A`` (``docs/robust.md``, "Symbolic
 analyses across outer iterations").
 """
 

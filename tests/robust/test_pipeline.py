@@ -34,6 +34,19 @@ def test_finds_exactly_the_outliers_and_the_clean_optimum_on_a_grid(seed):
     assert cost(clean, robust.poses) == pytest.approx(reference.final_cost, rel=1e-7)
 
 
+def test_by_default_no_outer_iteration_analyses_anew():
+    """One symbolic analysis of the chordal system and one of the LM system for the whole run, however
+    many outer iterations; re-analysing on every change of the edge set finds the same outliers."""
+    graph, outlier = _corrupted(grid(4, 4, 3, seed=3).graph)
+    once = optimize_robust(graph)
+    assert len(once.history) > 3 and once.analyses == 2
+    every = optimize_robust(graph, reanalyse_fraction=1.0)
+    assert every.analyses > once.analyses
+    np.testing.assert_array_equal(once.outlier_edges, np.flatnonzero(outlier))
+    np.testing.assert_array_equal(every.outlier_edges, once.outlier_edges)
+    np.testing.assert_allclose(every.poses, once.poses, atol=1e-8)
+
+
 def test_small_grid3d_with_half_outliers(shared_dataset):
     from posegraph.io.g2o import read_g2o
     from posegraph.solve.residuals import cost
