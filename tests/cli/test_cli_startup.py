@@ -66,10 +66,11 @@ def test_with_cvxopt_cholmod_a_whole_run_imports_no_scipy(tmp_path, shared_datas
         from posegraph import cli
         code = cli.main(["optimize", {str(source)!r}, "-o", {str(output)!r}, "--quiet", "--report", {str(report)!r}])
         print(code, sorted(name for name in sys.modules if name.split(".")[0] == "scipy"))
+        print(sorted(name for name in ("shutil", "tempfile", "random", "pathlib", "fractions") if name in sys.modules))
         """
     )
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.split() == ["0", "[]"]
+    assert proc.stdout.split() == ["0", "[]", "[]"]  # nor what argparse, tempfile or so3 might have pulled in
     assert json.loads(report.read_text())["linear_solver"].startswith("cholmod (supernodal, amd")
 
 
@@ -159,3 +160,16 @@ def test_help_loads_no_numpy(argv):
     assert proc.returncode == 0, proc.stderr
     imported = [line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")]
     assert imported and not [name for name in imported if name.split(".")[0] == "numpy"]
+
+
+@pytest.mark.parametrize("columns", [None, "100", "abc", "0", "-5", "30"])
+def test_help_is_as_wide_as_shutil_says(columns, monkeypatch):
+    import shutil
+
+    from posegraph.cli.parser import terminal_columns
+
+    if columns is None:
+        monkeypatch.delenv("COLUMNS", raising=False)
+    else:
+        monkeypatch.setenv("COLUMNS", columns)
+    assert terminal_columns() == shutil.get_terminal_size().columns
