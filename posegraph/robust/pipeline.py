@@ -35,6 +35,7 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
+from posegraph.robust.starts import known_inlier_mask, robust_chordal_start, squared_residuals
 
 __all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
 
@@ -92,21 +93,6 @@ class RobustResult:
         )
 
 
-def known_inlier_mask(graph: PoseGraph, known_inliers) -> np.ndarray:
-    """``(m,)`` bool from ``"odometry"`` (:meth:`PoseGraph.odometry_mask`, also for None),
-    ``"none"``, or a ``(m,)`` bool mask."""
-    if known_inliers is None or (isinstance(known_inliers, str) and known_inliers == "odometry"):
-        return graph.odometry_mask()
-    if isinstance(known_inliers, str):
-        if known_inliers != "none":
-            raise ValueError(f"known_inliers must be 'odometry', 'none' or a bool mask, got {known_inliers!r}")
-        return np.zeros(graph.num_edges, dtype=bool)
-    known = np.asarray(known_inliers)
-    if known.dtype != bool or known.shape != (graph.num_edges,):
-        raise ValueError(f"known_inliers must be a ({graph.num_edges},) bool mask, got {known.dtype} {known.shape}")
-    return known
-
-
 def optimize_robust(
     graph: PoseGraph,
     initial=None,
@@ -129,8 +115,6 @@ def optimize_robust(
     iteration. ``reanalyse_fraction``: when the solves analyse their edge set anew
     (:class:`~posegraph.robust.active.ActiveEdgeSolves`).
     """
-    from posegraph.robust.starts import robust_chordal_start, squared_residuals
-
     begin = time.perf_counter()
     gnc = GncParams() if gnc is None else gnc
     known = known_inlier_mask(graph, known_inliers)
@@ -177,7 +161,6 @@ def tls_alternation(solves: ActiveEdgeSolves, poses, inliers, judged, history: l
 
 def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: ActiveEdgeSolves, progress) -> GncResult:
     """GNC whose weighted solve is LM from the last solution (gtsam's ``GncLMOptimizer``, warm-started)."""
-    from posegraph.robust.starts import squared_residuals
     from posegraph.solve.optimizer import _initial_poses
 
     return run_gnc(

@@ -25,7 +25,7 @@ from posegraph.graph import PoseGraph
 from posegraph.robust.active import ActiveEdgeSolves
 from posegraph.robust.gnc import GncParams, GncResult, run_gnc
 
-__all__ = ["inlier_chain_start", "downweighted_chordal_start", "robust_chordal_start", "squared_residuals", "weighted_graph"]
+__all__ = ["known_inlier_mask", "inlier_chain_start", "downweighted_chordal_start", "robust_chordal_start", "squared_residuals", "weighted_graph"]
 
 
 def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
@@ -40,10 +40,18 @@ def weighted_graph(graph: PoseGraph, weights: np.ndarray) -> PoseGraph:
     return replace(graph, information=graph.information * np.asarray(weights, dtype=np.float64)[:, None, None], edge_source=None)
 
 
-def _known(graph: PoseGraph, known_inliers: np.ndarray | None) -> np.ndarray:
-    known = graph.odometry_mask() if known_inliers is None else np.asarray(known_inliers, dtype=bool)
-    if known.shape != (graph.num_edges,):
-        raise ValueError(f"known_inliers must be a ({graph.num_edges},) bool mask, got shape {known.shape}")
+def known_inlier_mask(graph: PoseGraph, known_inliers="odometry") -> np.ndarray:
+    """``(m,)`` bool from ``"odometry"`` (:meth:`PoseGraph.odometry_mask`, also for None),
+    ``"none"``, or a ``(m,)`` bool mask."""
+    if known_inliers is None or (isinstance(known_inliers, str) and known_inliers == "odometry"):
+        return graph.odometry_mask()
+    if isinstance(known_inliers, str):
+        if known_inliers != "none":
+            raise ValueError(f"known_inliers must be 'odometry', 'none' or a bool mask, got {known_inliers!r}")
+        return np.zeros(graph.num_edges, dtype=bool)
+    known = np.asarray(known_inliers)
+    if known.dtype != bool or known.shape != (graph.num_edges,):
+        raise ValueError(f"known_inliers must be a ({graph.num_edges},) bool mask, got {known.dtype} {known.shape}")
     return known
 
 
@@ -53,7 +61,7 @@ def inlier_chain_start(graph: PoseGraph, known_inliers: np.ndarray | None = None
     from a held vertex keep their file pose."""
     from posegraph.init.odometry import odometry_initialization
 
-    known = _known(graph, known_inliers)
+    known = known_inlier_mask(graph, known_inliers)
     keep = np.flatnonzero(known)
     inliers_only = replace(
         graph,
@@ -73,7 +81,7 @@ def downweighted_chordal_start(graph: PoseGraph, factor: float = 1e-3, known_inl
 
     if not 0.0 < factor <= 1.0:
         raise ValueError(f"factor must be in (0, 1], got {factor!r}")
-    known = _known(graph, known_inliers)
+    known = known_inlier_mask(graph, known_inliers)
     return chordal_initialization(weighted_graph(graph, np.where(known, 1.0, factor)))
 
 
@@ -93,7 +101,7 @@ def robust_chordal_start(
     (:class:`~posegraph.robust.active.ActiveEdgeSolves`; pass ``solves`` to share its analyses).
     ``progress`` gets each outer iteration's :class:`~posegraph.robust.gnc.GncIteration`.
     """
-    known = _known(graph, known_inliers)
+    known = known_inlier_mask(graph, known_inliers)
     solves = ActiveEdgeSolves(graph) if solves is None else solves
     return run_gnc(
         lambda poses: squared_residuals(graph, poses),
