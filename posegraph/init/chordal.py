@@ -120,11 +120,13 @@ def chordal_initialization(
     return poses
 
 
-def chordal_problem(graph: PoseGraph, linear_solver: str = "auto") -> RelativeLeastSquares:
-    """The sparse system both chordal stages solve, analysed for ``graph``'s edges and held vertices."""
+def chordal_problem(graph: PoseGraph, linear_solver: str = "auto", ordering: str = "auto") -> RelativeLeastSquares:
+    """The sparse system both chordal stages solve, analysed for ``graph``'s edges and held vertices
+    (``ordering``: CHOLMOD's, of the vertex graph; ``"auto"`` as the solver's)."""
     return RelativeLeastSquares(
-        held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver, block=graph.group.space_dim
-    )
+        held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver,
+        block=graph.group.space_dim, ordering=ordering,
+    )  # fmt: skip
 
 
 def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:

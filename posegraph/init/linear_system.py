@@ -69,6 +69,8 @@ class RelativeLeastSquares:
         (:class:`posegraph.native_threads.NativeThreads`; None leaves it as it is).
     block : int, default 3
         ``r``, the rows of each vertex's block ``x_k`` (3 for 3D graphs, 2 for planar ones).
+    ordering : str, default ``"auto"``
+        CHOLMOD's fill-reducing ordering of the vertex graph (:func:`posegraph.cholmod.block_cholesky`).
     """
 
     def __init__(
@@ -80,14 +82,18 @@ class RelativeLeastSquares:
         linear_solver: str = "auto",
         threads: int | None = 1,
         block: int = 3,
+        ordering: str = "auto",
     ):
         if linear_solver not in LINEAR_SOLVERS:
             raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
         if threads is not None and (int(threads) != threads or threads < 1):
             raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+        if ordering != "auto" and ordering not in cholmod_library.ORDERINGS:
+            raise ValueError(f"ordering must be 'auto' or one of {cholmod_library.ORDERINGS}, got {ordering!r}")
         self.linear_solver = linear_solver
         self.threads = threads
         self.block = int(block)
+        self.ordering = ordering
         self.held = np.asarray(held, dtype=bool)
         self.edge_from = np.asarray(edge_from, dtype=np.int64)
         self.edge_to = np.asarray(edge_to, dtype=np.int64)
@@ -276,7 +282,7 @@ class RelativeLeastSquares:
         """CHOLMOD's factorisation object for the pattern: ordering and symbolic analysis."""
         return cholmod_library.block_cholesky(
             self._indptr, self._indices, self._block_indptr, self._block_rows, self.num_free, self.block,
-            threads=self.threads,
+            self.ordering, threads=self.threads,
         )  # fmt: skip
 
     def _cholmod_solve(self, data: np.ndarray):

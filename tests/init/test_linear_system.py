@@ -67,3 +67,24 @@ def test_restricted_solve_equals_the_problem_of_the_counted_edges(linear_solver)
         RelativeLeastSquares(held, edge_from, edge_to, linear_solver=linear_solver).solve(values, transfer, weight, offset),
         rtol=0, atol=1e-10,
     )  # fmt: skip
+
+
+def test_every_ordering_gives_the_same_solution_and_a_bad_name_is_refused():
+    from posegraph import cholmod
+
+    rng = np.random.default_rng(4)
+    edge_from, edge_to, transfer, weight, offset, values = _random_problem(rng)
+    held = np.zeros(values.shape[0], bool)
+    held[0] = True
+    solutions = [
+        RelativeLeastSquares(held, edge_from, edge_to, ordering=ordering).solve(values, transfer, weight, offset)
+        for ordering in ("auto", "amd", "nesdis", "natural")
+    ]
+    for solution in solutions[1:]:
+        np.testing.assert_allclose(solution, solutions[0], rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="ordering"):
+        RelativeLeastSquares(held, edge_from, edge_to, ordering="colamd")
+    if cholmod.load() is not None:
+        problem = RelativeLeastSquares(held, edge_from, edge_to, ordering="nesdis")
+        problem.solve(values, transfer, weight, offset)
+        assert problem._cholesky.ordering == "nesdis"

@@ -97,3 +97,22 @@ def test_analyses_are_remade_only_as_the_policy_says(case, fraction, expected):
 def test_reanalyse_fraction_outside_0_1_is_refused(case):
     with pytest.raises(ValueError, match="reanalyse_fraction"):
         ActiveEdgeSolves(case[0], reanalyse_fraction=1.5)
+
+
+def test_weighted_solves_order_by_nested_dissection_unless_told(case):
+    """'auto' means nested dissection here (random wrong loop closures fill less under it); an explicit
+    ordering is kept; either way the solves reach the same poses."""
+    import importlib.util
+
+    from posegraph.robust.active import ROBUST_ORDERING
+
+    graph, weights, _, _ = case
+    auto = ActiveEdgeSolves(graph, TIGHT)
+    expected = ROBUST_ORDERING if importlib.util.find_spec("pymetis") is not None else "amd"
+    assert auto.params.ordering == expected
+    amd = ActiveEdgeSolves(graph, SolverParams(relative_tolerance=1e-14, absolute_tolerance=1e-20, ordering="amd"))
+    assert amd.params.ordering == "amd"
+    fitted = [solves.least_squares(solves.chordal(weights), weights) for solves in (auto, amd)]
+    if fitted[0].linear_solver.startswith("cholmod"):
+        assert f"supernodal, {expected}" in fitted[0].linear_solver and "supernodal, amd" in fitted[1].linear_solver
+    np.testing.assert_allclose(fitted[0].poses, fitted[1].poses, atol=1e-8)
