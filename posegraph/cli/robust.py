@@ -50,7 +50,7 @@ def robust_options(p: argparse.ArgumentParser) -> None:
                    help="write OUT without the edges judged outliers (final weight below 0.5)")
     p.add_argument("--reanalyse-fraction", type=unit_fraction, default=None, metavar="F",
                    help="gnc: analyse the sparsity anew when the edges of nonzero weight fall below F times the "
-                        "analysed ones (default 0: analyse once, unless an edge outside them comes back; 0.98 was 1.4-4x "
+                        "analysed ones (default 0: analyse once, unless an edge outside them comes back; 0.98 was 1.4-3.5x "
                         "faster on the benchmarks; 1: on every change)")
 
 

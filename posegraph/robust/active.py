@@ -20,7 +20,7 @@ analysis itself costs a few ms (CHOLMOD's symbolic factorisation ~3 ms there). T
 ``reanalyse_fraction = 0`` (:data:`DEFAULT_REANALYSE_FRACTION`) analyses once — the first solve of
 GNC weighs every edge, so no outer iteration analyses again — as the robust-optimisation issue
 specifies; ``0.98`` re-analyses when the dropped edges reach 2 % of the pattern, which was
-1.4–2.5 × faster end to end with 20 % outliers (up to 4 × with 50–80 %), and ``1`` on every change of ``A`` (``docs/robust.md``, "Symbolic
+1.4–2.1 × faster end to end with 20 % outliers (more with more: torus3D + 80 % 38 s against 10 s), and ``1`` on every change of ``A`` (``docs/robust.md``, "Symbolic
 analyses across outer iterations").
 """
 
@@ -63,10 +63,10 @@ DEFAULT_REANALYSE_FRACTION = 0.0
 """Default of :class:`ActiveEdgeSolves`' ``reanalyse_fraction``: analyse once, so that no outer
 iteration of GNC re-analyses (the design the robust-optimisation issue asks for). Measured
 (``docs/robust.md``) on sphere2500, parking-garage and torus3D + 20 % outliers, whole ``--robust
-gnc`` process: 2.0 / 1.9 / 7.2 s with 2 analyses (one per system); ``0.98`` took 1.3 / 1.2 / 3.0 s
-with 5–7, re-analysing on every change (``1``) 1.3 / 1.3 / 2.9 s with 13–17 — the outliers' fill
-left in the analysed pattern is what analysing once pays for. Every variant finds the same outliers
-and the same optimum."""
+gnc`` process, :data:`ROBUST_ORDERING`: 1.69 / 1.68 / 5.78 s with 2 analyses (one per system);
+``0.98`` took 1.23 / 1.15 / 2.70 s with 5–7, re-analysing on every change (``1``) 1.28 / 1.22 /
+2.73 s with 13–17 — the outliers' fill left in the analysed pattern is what analysing once pays
+for. Every variant finds the same outliers and the same optimum."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,7 +22,7 @@ dropped edges at weight 0. By default (``reanalyse_fraction=0``) that is one ana
 chordal system (over every edge) and one of the Levenberg-Marquardt system (over the start's
 inliers), a new one only if the TLS rounds readmit an edge outside it. ``reanalyse_fraction=0.98``
 analyses anew when fewer than 98 % of the analysed edges are still weighted: the outliers' fill
-then costs more than an analysis, and the whole run took 0.25–0.7 × as long (``docs/robust.md``).
+then costs more than an analysis, and the whole run took 0.3–0.7 × as long (``docs/robust.md``).
 """
 
 from __future__ import annotations
