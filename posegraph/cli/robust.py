@@ -16,18 +16,8 @@ import math
 import os
 import sys
 
-from posegraph.cli.common import positive_float
+from posegraph.cli.common import positive_float, unit_fraction
 
-
-def unit_fraction(text: str) -> float:
-    """argparse type: a number in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
-    return value
 
 ROBUST_CHOICES = ("none", "huber", "cauchy", "geman-mcclure", "tukey", "dcs", "tls", "gnc")
 """``--robust`` values: no loss, the six M-estimators, or graduated non-convexity."""
