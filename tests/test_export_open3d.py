@@ -60,15 +60,7 @@ def test_open3d_optimiser_recovers_the_consistent_poses():
         rng.normal(scale=0.03, size=(graph.num_vertices - 1, 3))
     ).as_matrix()
     pose_graph = to_open3d_pose_graph(graph, noisy)
-    reg = o3d.pipelines.registration
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        reg.global_optimization(
-            pose_graph,
-            reg.GlobalOptimizationLevenbergMarquardt(),
-            reg.GlobalOptimizationConvergenceCriteria(),
-            reg.GlobalOptimizationOption(max_correspondence_distance=0.1, edge_prune_threshold=0.25, reference_node=0),
-        )
-    optimised = np.array([node.pose for node in pose_graph.nodes])
+    optimised = open3d_optimise(pose_graph, reference_node=0)
     assert np.abs(noisy - graph.poses).max() > 0.05
     np.testing.assert_allclose(optimised, graph.poses, atol=1e-5)
 
@@ -125,15 +117,7 @@ def test_open3d_optimiser_recovers_a_consistent_2d_graph():
     noisy = se2.compose(graph.poses, se2.exp(rng.normal(scale=0.03, size=(graph.num_vertices, 3))))
     noisy[0] = np.eye(3)
     pose_graph = to_open3d_pose_graph(graph, noisy)
-    reg = o3d.pipelines.registration
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        reg.global_optimization(
-            pose_graph,
-            reg.GlobalOptimizationLevenbergMarquardt(),
-            reg.GlobalOptimizationConvergenceCriteria(),
-            reg.GlobalOptimizationOption(max_correspondence_distance=0.1, edge_prune_threshold=0.25, reference_node=0),
-        )
-    optimised = np.array([node.pose for node in pose_graph.nodes])
+    optimised = open3d_optimise(pose_graph, reference_node=0)
     assert np.abs(noisy - graph.poses).max() > 0.03
     np.testing.assert_allclose(optimised, se2.to_se3(graph.poses), atol=1e-5)  # back, and still planar
 
