@@ -32,7 +32,7 @@ import numpy as np
 
 __all__ = [
     "NotPositiveDefiniteError", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS", "VERTEX_ORDERINGS",
-    "NESTED_DISSECTION_VERTICES", "auto_ordering", "fill_reducing_order", "block_permutation", "block_cholesky",
+    "NESTED_DISSECTION_VERTICES", "auto_ordering", "nested_dissection_available", "fill_reducing_order", "block_permutation", "block_cholesky",
 ]  # fmt: skip
 
 
@@ -317,9 +317,14 @@ def auto_ordering(num_vertices: int) -> str:
     """The ordering ``"auto"`` stands for on a system of ``num_vertices`` free vertices (AMD without pymetis)."""
     if num_vertices < NESTED_DISSECTION_VERTICES:
         return "amd"
+    return "nesdis" if nested_dissection_available() else "amd"
+
+
+def nested_dissection_available() -> bool:
+    """Whether ``"nesdis"`` orders can be made: the pymetis wheel is installed (not imported here)."""
     import importlib.util
 
-    return "nesdis" if importlib.util.find_spec("pymetis") is not None else "amd"
+    return importlib.util.find_spec("pymetis") is not None
 
 
 def _adjacency(indptr, indices, n: int) -> tuple[np.ndarray, np.ndarray]:

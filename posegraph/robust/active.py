@@ -94,11 +94,11 @@ optima."""
 
 def robust_ordering(params) -> str:
     """``params.ordering``, with ``"auto"`` read as :data:`ROBUST_ORDERING` when pymetis is installed."""
+    from posegraph.cholmod import nested_dissection_available
+
     if params.ordering != "auto":
         return params.ordering
-    import importlib.util
-
-    return ROBUST_ORDERING if importlib.util.find_spec("pymetis") is not None else "amd"
+    return ROBUST_ORDERING if nested_dissection_available() else "amd"
 
 
 class ActiveEdgeSolves:
