@@ -111,18 +111,6 @@ def _lower_triplets(indptr, indices, n: int) -> tuple[np.ndarray, np.ndarray, np
     return rows[kept], columns[kept], kept
 
 
-def _spmatrix(rows, columns, n: int, values=None):
-    """A cvxopt ``spmatrix`` of order ``n`` with entries at ``rows``, ``columns`` ``(k,)`` (int64 indices).
-
-    ``values`` ``(k,)`` or None for ones.
-    """
-    from cvxopt import matrix, spmatrix
-
-    rows = np.ascontiguousarray(rows, dtype=np.int64)
-    data = np.ones(rows.shape[0]) if values is None else np.ascontiguousarray(values, dtype=np.float64)
-    return spmatrix(matrix(data), matrix(rows), matrix(np.ascontiguousarray(columns, dtype=np.int64)), (n, n))
-
-
 def _as_index_matrix(values):
     from cvxopt import matrix
 
@@ -373,10 +361,11 @@ def fill_reducing_order(indptr, indices, n: int, method: str = "amd") -> np.ndar
 def _approximate_minimum_degree(rows: np.ndarray, columns: np.ndarray, n: int) -> np.ndarray:
     """cvxopt's AMD order of the symmetric pattern whose lower triangle is ``rows``, ``columns``."""
     _require()
-    from cvxopt import amd
+    from cvxopt import amd, spmatrix
 
+    pattern = spmatrix(1.0, _as_index_matrix(rows), _as_index_matrix(columns), (n, n))
     with _options(amd):
-        order = amd.order(_spmatrix(rows, columns, n), uplo="L")
+        order = amd.order(pattern, uplo="L")
     return np.array(order, dtype=np.int64).ravel()
 
 
