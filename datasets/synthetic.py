@@ -683,6 +683,26 @@ def _free_pairs(rng: np.random.Generator, graph: PoseGraph, count: int) -> np.nd
     return np.stack([by_rank[older], by_rank[newer]], axis=1)
 
 
+def _parallel_edges(rng: np.random.Generator, graph: PoseGraph, on_odometry: int, on_loop_closures: int) -> np.ndarray:
+    """Indices of ``on_odometry`` distinct odometry edges and ``on_loop_closures`` distinct loop
+    closures of ``graph`` (:meth:`PoseGraph.odometry_mask`), drawn at random, for outliers parallel to them."""
+    odometry = graph.odometry_mask()
+    chosen = []
+    for pool, k in ((np.flatnonzero(odometry), on_odometry), (np.flatnonzero(~odometry), on_loop_closures)):
+        if k > len(pool):
+            raise ValueError(f"{k} parallel outliers asked but the graph has only {len(pool)} such edges")
+        chosen.append(rng.choice(pool, size=k, replace=False) if k else np.zeros(0, np.int64))  # k = 0 draws nothing
+    return np.concatenate(chosen).astype(np.int64)
+
+
+def _front_end_positions(graph: PoseGraph, pairs: np.ndarray) -> np.ndarray:
+    """``(k,)`` insertion positions (into the original edge order) of edges joining ``pairs``: after
+    the last original edge whose newer vertex (by id) comes no later than the pair's newer one."""
+    ids = graph.ids
+    newest_so_far = np.maximum.accumulate(np.maximum(ids[graph.edge_from], ids[graph.edge_to])) if graph.num_edges else np.zeros(0, np.int64)
+    return np.searchsorted(newest_so_far, np.maximum(ids[pairs[:, 0]], ids[pairs[:, 1]]), side="right")
+
+
 def inject_outliers(
     graph: PoseGraph,
     *,
@@ -690,6 +710,9 @@ def inject_outliers(
     fraction: float | None = None,
     seed: int = 0,
     translation_range: float | None = None,
+    on_odometry: int = 0,
+    on_loop_closures: int = 0,
+    wrong_first: bool = False,
 ) -> tuple[PoseGraph, np.ndarray]:
     """``graph`` plus random wrong loop closures; returns the new graph and their edge indices.
 
@@ -703,6 +726,12 @@ def inject_outliers(
     order a front end emits edges in; the original edges keep their order. Returns
     ``(graph, indices)`` with ``indices`` ``(count,)`` sorted 0-based positions of the outliers
     in the new graph's edge order, which is its g2o file's edge-line order.
+
+    Of the ``count`` outliers, ``on_odometry`` join a random odometry pair (neighbours in id order)
+    and ``on_loop_closures`` the two vertices of a random loop closure, each parallel to the edge
+    already there (as a front end's duplicate or false match between consecutive frames); the rest
+    join free pairs as above. A parallel outlier follows the edge it duplicates in edge order, or,
+    with ``wrong_first``, precedes it (the front end emitted the wrong one first).
     """
     if (count is None) == (fraction is None):
         raise ValueError("give exactly one of count and fraction")
@@ -712,8 +741,13 @@ def inject_outliers(
             raise ValueError(f"fraction must be a number >= 0, got {fraction!r}")
         count = int(round(fraction * len(loops)))
     count = _check_count("count", count, 0)
+    parallel = _check_count("on_odometry", on_odometry, 0) + _check_count("on_loop_closures", on_loop_closures, 0)
+    if parallel > count:
+        raise ValueError(f"on_odometry + on_loop_closures = {parallel} exceeds the {count} outliers")
     rng = np.random.default_rng(seed)
-    pairs = _free_pairs(rng, graph, count)
+    pairs = _free_pairs(rng, graph, count - parallel)
+    duplicated = _parallel_edges(rng, graph, on_odometry, on_loop_closures)
+    pairs = np.concatenate([pairs, np.stack([graph.edge_from[duplicated], graph.edge_to[duplicated]], axis=1)])
     if translation_range is None:
         positions = graph.poses[:, :-1, -1]  # (n, 3) or, for SE(2), (n, 2)
         translation_range = max(1.0, 0.5 * float(np.linalg.norm(np.ptp(positions, axis=0)))) if len(positions) else 1.0
@@ -723,12 +757,11 @@ def inject_outliers(
         measurements = random_relative_poses(rng, count, translation_range)
     donors = rng.choice(loops if len(loops) else np.arange(graph.num_edges), size=count)
 
-    # Front-end order: after the last original edge whose newer vertex (by id) is not later.
-    ids = graph.ids
-    newest_so_far = np.maximum.accumulate(np.maximum(ids[graph.edge_from], ids[graph.edge_to])) if graph.num_edges else np.zeros(0, np.int64)
-    order = np.argsort(ids[pairs[:, 1]], kind="stable")
-    pairs, measurements, donors = pairs[order], measurements[order], donors[order]
-    positions = np.searchsorted(newest_so_far, ids[pairs[:, 1]], side="right")
+    positions = _front_end_positions(graph, pairs)
+    if wrong_first:
+        positions[count - parallel:] = duplicated
+    order = np.lexsort((graph.ids[pairs].max(axis=1), positions))  # by position, then newer id, then as drawn
+    pairs, measurements, donors, positions = pairs[order], measurements[order], donors[order], positions[order]
     indices = positions + np.arange(count)
     keep = np.ones(graph.num_edges + count, bool)
     keep[indices] = False
@@ -881,11 +914,18 @@ def _inject_parser() -> argparse.ArgumentParser:
     how_many.add_argument("--count", type=int, help="number of outliers")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--translation-range", type=float, default=None, help="outlier translations uniform in ±this per axis (default: half the graph's bounding-box diagonal)")
+    parser.add_argument("--on-odometry", type=int, default=0, metavar="K",
+                        help="K of the outliers parallel to random odometry edges (between consecutive vertices; default 0)")
+    parser.add_argument("--on-loop-closures", type=int, default=0, metavar="K",
+                        help="K of the outliers parallel to random loop closures (default 0)")
+    parser.add_argument("--wrong-first", action="store_true",
+                        help="each parallel outlier precedes the edge it duplicates (default: follows it)")
     return parser
 
 
 def inject_main(argv: list[str]) -> int:
-    """``python -m datasets.synthetic inject IN -o OUT (--fraction F | --count N) [--seed S]``."""
+    """``python -m datasets.synthetic inject IN -o OUT (--fraction F | --count N) [--seed S] [--on-odometry K]
+    [--on-loop-closures K] [--wrong-first]``."""
     parser = _inject_parser()
     args = parser.parse_args(argv)
     from posegraph.errors import InputError
@@ -894,8 +934,9 @@ def inject_main(argv: list[str]) -> int:
     try:
         graph = read_g2o(args.input)
         injected, indices = inject_outliers(
-            graph, count=args.count, fraction=args.fraction, seed=args.seed, translation_range=args.translation_range
-        )
+            graph, count=args.count, fraction=args.fraction, seed=args.seed, translation_range=args.translation_range,
+            on_odometry=args.on_odometry, on_loop_closures=args.on_loop_closures, wrong_first=args.wrong_first,
+        )  # fmt: skip
         path, indices_path = write_injected(args.output, injected, indices, source=args.input)
     except (InputError, OSError) as error:  # InputError is a ValueError: caught first
         print(f"error: {error}", file=sys.stderr)

@@ -8,7 +8,7 @@ problem is not tied to one line) and the reason, and prints as
 
 from __future__ import annotations
 
-__all__ = ["InputError", "G2oFormatError", "GraphError", "OutputError", "InputWarning"]
+__all__ = ["InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning"]
 
 
 class InputError(ValueError):
@@ -39,5 +39,10 @@ class OutputError(InputError):
     """An output cannot be written as asked (it would overwrite the input, or its folder does not exist)."""
 
 
-class InputWarning(UserWarning):
+class PosegraphWarning(UserWarning):
+    """posegraph's own warnings: the command line shows every one of these, and leaves other
+    packages' warnings (numpy's, scipy's, Python's deprecations) to Python's filters."""
+
+
+class InputWarning(PosegraphWarning):
     """Something in the input was repaired or skipped (normalised quaternion, unknown tags, several components)."""

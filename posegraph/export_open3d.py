@@ -54,9 +54,13 @@ def require_open3d():
     """Import and return ``open3d``, or raise ImportError with the install command."""
     try:
         import open3d
-    except (ImportError, OSError) as exc:  # OSError: a missing shared library such as libusb
+    except Exception as exc:  # ImportError, or OSError from a missing shared library such as libusb
+        if isinstance(exc, ModuleNotFoundError) and exc.name == "open3d":
+            raise ImportError(f"this command needs Open3D, which is not installed; install it: {INSTALL_HINT}", name="open3d") from exc
+        reason = " ".join(str(exc).split())
         raise ImportError(
-            f"this command needs Open3D, which is not usable here ({exc}); install it: {INSTALL_HINT}"
+            f"this command needs Open3D, which is installed but cannot load ({type(exc).__name__}: {reason}); "
+            "on Debian/Ubuntu its wheel needs the system's libusb: apt install libusb-1.0-0", name="open3d",
         ) from exc
     return open3d
 

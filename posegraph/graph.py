@@ -31,7 +31,7 @@ import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
 
-__all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
+__all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
 
 def edge_checksum(graph: "PoseGraph") -> int:
@@ -140,17 +140,33 @@ class PoseGraph:
         return found
 
     def odometry_mask(self) -> np.ndarray:
-        """``(m,)`` bool: True for odometry edges, False for loop closures.
+        """``(m,)`` bool: True for odometry edges, False for loop closures (and loop-closure candidates).
 
-        An edge is odometry when its two vertices are neighbours in id order:
-        ``|rank(id_i) − rank(id_j)| = 1``, where ``rank`` is the position in the
-        sorted ids. For ids ``0..n−1`` this is ``|id_i − id_j| = 1``; it also
-        holds for sparse ids (keyframes 0, 5, 10…) and for files that list the
-        vertices out of order.
+        An edge joins neighbours in id order when ``|rank(id_i) − rank(id_j)| = 1``, where ``rank``
+        is the position in the sorted ids. For ids ``0..n−1`` this is ``|id_i − id_j| = 1``; it also
+        holds for sparse ids (keyframes 0, 5, 10…) and for files that list the vertices out of order.
+        Each such pair has one odometry edge, the first joining it in edge (file) order; a further
+        edge between the same two vertices, whichever way round, is a loop closure like the others:
+        a front end can emit a wrong edge parallel to the odometry (a duplicate, a false match), and
+        robust optimisation must be free to reject it (:func:`posegraph.robust.optimize_robust`
+        trusts the odometry edges).
         """
-        rank = np.empty(self.num_vertices, dtype=np.int64)
-        rank[np.argsort(self.ids, kind="stable")] = np.arange(self.num_vertices)
-        return np.abs(rank[self.edge_from] - rank[self.edge_to]) == 1
+        pair = neighbour_pairs(self)
+        neighbours = np.flatnonzero(pair >= 0)
+        _, first = np.unique(pair[neighbours], return_index=True)  # each pair's first edge in edge order
+        odometry = np.zeros(self.num_edges, dtype=bool)
+        odometry[neighbours[first]] = True
+        return odometry
+
+
+def neighbour_pairs(graph: PoseGraph) -> np.ndarray:
+    """``(m,)`` int64: for an edge whose vertices are neighbours in id order
+    (``|rank(id_i) − rank(id_j)| = 1``, ``rank`` the position in the sorted ids), the lower rank
+    of the two, which names the pair; −1 for every other edge."""
+    rank = np.empty(graph.num_vertices, dtype=np.int64)
+    rank[np.argsort(graph.ids, kind="stable")] = np.arange(graph.num_vertices)
+    rank_from, rank_to = rank[graph.edge_from], rank[graph.edge_to]
+    return np.where(np.abs(rank_from - rank_to) == 1, np.minimum(rank_from, rank_to), -1)
 
 
 def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:

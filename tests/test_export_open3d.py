@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from tests.optional import import_or_skip
 from scipy.spatial.transform import Rotation
 
 from posegraph.graph import PoseGraph
 from posegraph.lie import se2
 
-o3d = pytest.importorskip("open3d", reason="Open3D not installed (pip install open3d)")
+o3d = import_or_skip("open3d", "Open3D export")
 
 from posegraph.export_open3d import (  # noqa: E402
     to_open3d_pose_graph,

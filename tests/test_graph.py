@@ -117,12 +117,21 @@ def test_graph_facts(graph):
     assert (facts.degree_min, facts.degree_max) == (0, 2)
     assert facts.degree_mean == pytest.approx(10 / 6)
     assert facts.degree_median == 2.0
-    assert (facts.num_odometry_edges, facts.num_loop_closures) == (4, 1)
+    assert (facts.num_odometry_edges, facts.num_loop_closures) == (3, 2)  # 40→50 parallels 50→40
 
 
 def test_odometry_means_neighbours_in_id_order(graph):
     # Sorted ids 10 20 30 40 50 60: 10→20, 20→30, 50→40, 40→50 join neighbours; 30→10 skips 20.
-    assert graph.odometry_mask().tolist() == [True, True, False, True, True]
+    # 40→50 joins the pair 50→40 already joined: a loop-closure candidate, not odometry.
+    assert graph.odometry_mask().tolist() == [True, True, False, True, False]
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_the_odometry_of_a_pair_is_its_first_edge_in_file_order(order):
+    edges = [(0, 1), (1, 2), (2, 3)]
+    duplicates = [(2, 1), (1, 2)]  # parallel to 1→2, one each way round
+    g = make_graph([0, 1, 2, 3], [edges[0], duplicates[order[0]], edges[1], edges[2], duplicates[order[1]]])
+    assert g.odometry_mask().tolist() == [True, True, False, True, False]
 
 
 def test_odometry_with_consecutive_ids_is_unit_id_difference():

@@ -68,7 +68,7 @@ class WarningPrinter:
         self.count += 1
         if self.count <= MAX_WARNINGS_SHOWN:
             text = " ".join(str(message).split())
-            if not _is_input_warning(category):
+            if not _is_ours(category):
                 text = f"{category.__name__}: {text}"
             warn(text)
 
@@ -77,10 +77,10 @@ class WarningPrinter:
             warn(f"{self.count - MAX_WARNINGS_SHOWN} more warnings not shown")
 
 
-def _is_input_warning(category) -> bool:
-    from posegraph.errors import InputWarning
+def _is_ours(category) -> bool:
+    from posegraph.errors import PosegraphWarning
 
-    return issubclass(category, InputWarning)
+    return issubclass(category, PosegraphWarning)
 
 
 class Status:

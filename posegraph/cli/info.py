@@ -56,8 +56,10 @@ def _read_for_description(args):
     """
     import warnings
 
+    from posegraph.errors import PosegraphWarning
+
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+        warnings.simplefilter("always", PosegraphWarning)  # the others as the command line filters them
         graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=True)
     refusals = []
     for w in caught:

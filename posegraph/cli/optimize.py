@@ -12,7 +12,8 @@ from posegraph.cli.common import (
     warn,
 )
 from posegraph.cli.robust import (
-    check_robust_options, final_weights, output_graph, robust_options, robust_report, robust_summary, run_gnc,
+    check_robust_options, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
+    robust_summary, run_gnc, warn_about_known_inliers,
 )
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
 
@@ -89,11 +90,13 @@ def run(args) -> int:
     # the solver's last residuals are those of `inliers` unless the robust path dropped edges
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
-    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances)
+    known = known_inlier_facts(held, robust)
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2)
         robust_summary(graph, weights, args)
     _warn_if_chi2_high(chi2)
+    warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
         return EXIT_OK if drawn else EXIT_NOT_CONVERGED
@@ -180,7 +183,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 
 def _write_outputs(
-    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None
+    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -203,7 +206,7 @@ def _write_outputs(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
                 file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
             )
-            report = json_text(robust_report(report, args, weights))
+            report = json_text(robust_report(report, args, weights, known))
             if args.report == STDIO:
                 printed.append(report)
             else:

@@ -35,12 +35,24 @@ def main(argv=None) -> int:
         return EXIT_BUG
 
 
+def _show_warnings(everything: bool) -> None:
+    """Show each of posegraph's own warnings (:class:`~posegraph.errors.PosegraphWarning`: input
+    repaired or skipped, suspicious results), every time it is raised; other packages' warnings
+    follow Python's filters (its defaults, ``-W``, ``PYTHONWARNINGS``), or with ``--debug`` all
+    show. Filters added later take precedence, so ours goes last."""
+    from posegraph.errors import PosegraphWarning
+
+    if everything:
+        warnings.simplefilter("always")
+    warnings.simplefilter("always", PosegraphWarning)
+
+
 def _run(argv: list) -> int:
     """Parse and run; map a user's mistakes (and Ctrl-C) to one line and an exit status; bugs propagate."""
     printer = WarningPrinter()
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("always")
+            _show_warnings(everything=DEBUG_OPTION in argv)
             warnings.showwarning = printer
             try:
                 named = argv[0] if argv and argv[0] in COMMANDS else None

@@ -35,7 +35,11 @@ def robust_options(p: argparse.ArgumentParser) -> None:
                    help="the loss's scale in units of the whitened residual norm (default: the loss's own; "
                         "gnc: the inlier threshold, default sqrt of the chi2 0.99 quantile, 4.10 in 3D)")
     p.add_argument("--known-inliers", choices=("odometry", "none"), default="odometry",
-                   help="gnc: edges never rejected (default odometry: consecutive vertex ids)")
+                   help="gnc: edges trusted, never rejected (default odometry: one edge per pair of consecutive "
+                        "vertex ids; where parallel edges join a pair, the one the other edges agree with); a trusted "
+                        "edge that fails the inlier test at the result is released and GNC runs again, with a warning")
+    p.add_argument("--strict-known-inliers", action="store_true",
+                   help="gnc: never release a known inlier; only warn about those that fail the inlier test")
     p.add_argument("--drop-outliers", action="store_true",
                    help="write OUT without the edges judged outliers (final weight below 0.5)")
     p.add_argument("--reanalyse-fraction", type=unit_fraction, default=None, metavar="F",
@@ -54,6 +58,8 @@ def check_robust_options(args) -> None:
         raise UsageError("--robust-scale needs a robust loss (--robust NAME)")
     if args.reanalyse_fraction is not None and args.robust != "gnc":
         raise UsageError("--reanalyse-fraction needs --robust gnc")
+    if args.strict_known_inliers and args.robust != "gnc":
+        raise UsageError("--strict-known-inliers needs --robust gnc")
     if args.drop_outliers and "-" not in (args.input, args.output) and os.path.exists(args.output) and os.path.samefile(args.output, args.input):
         raise UsageError(f"--drop-outliers never overwrites the input {args.input}: choose another OUT")
 
@@ -79,7 +85,8 @@ def run_gnc(graph, start, params, args, status):
         status(f"  {stage} {record.iteration:3d}  mu {record.mu:.3g}  inliers {record.inliers}  cost {record.cost:.10e}")
 
     fraction = {} if args.reanalyse_fraction is None else {"reanalyse_fraction": args.reanalyse_fraction}
-    return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress, **fraction)
+    return optimize_robust(graph, start, params, gnc=gnc, known_inliers=args.known_inliers, progress=progress,
+                           strict_known_inliers=args.strict_known_inliers, **fraction)  # fmt: skip
 
 
 def final_weights(graph, args, result, robust):
@@ -104,15 +111,61 @@ def robust_summary(graph, weights, args) -> None:
         print(outlier_line(graph, weights), file=out, flush=True)
 
 
-def robust_report(report: dict, args, weights) -> dict:
+def robust_report(report: dict, args, weights, known=None) -> dict:
     """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
-    indices with final weight below 0.5) when robust; unchanged otherwise."""
+    indices with final weight below 0.5) when robust, and ``known_inliers`` (GNC's, from
+    :func:`known_inlier_facts`) when given; unchanged otherwise."""
     import numpy as np  # here, not at import: --help and the parser must not load numpy
 
     if weights is not None:
         report["robust"] = args.robust
         report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
+    if known is not None:
+        report["known_inliers"] = dict(known, mode=args.known_inliers, strict=bool(args.strict_known_inliers))
     return report
+
+
+def known_inlier_facts(graph, robust) -> dict | None:
+    """What GNC's trusted edges look like at its result (None without GNC): ``count``,
+    ``chi2_per_dof`` (:func:`~posegraph.robust.trust.known_chi2_per_dof`), and ``released`` and
+    ``suspicious`` (:class:`~posegraph.robust.pipeline.RobustResult`'s, 0-based edge-line indices)."""
+    if robust is None:
+        return None
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
+    from posegraph.robust.starts import squared_residuals
+    from posegraph.robust.trust import known_chi2_per_dof
+
+    ratio = known_chi2_per_dof(squared_residuals(graph, robust.poses), robust.known, graph.group.dim)
+    return {"count": int(np.count_nonzero(robust.known)), "chi2_per_dof": ratio,
+            "released": [int(k) for k in robust.released], "suspicious": [int(k) for k in robust.suspicious]}
+
+
+def warn_about_known_inliers(graph, known: dict | None) -> None:
+    """Warnings naming the known inliers GNC released, or (strict, or still failing) kept though they
+    fail the inlier test, and one when their χ² per dof is far above 1."""
+    from posegraph.cli.common import warn
+    from posegraph.report import CHI2_PER_DOF_WARNING
+
+    if known is None:
+        return
+    if known["released"]:
+        warn(f"{_edges_text(graph, known['released'])} trusted as known inliers failed the inlier test at the result "
+             "and were released: GNC ran again judging them like loop closures (--strict-known-inliers keeps them)")
+    if known["suspicious"]:
+        warn(f"{_edges_text(graph, known['suspicious'])} trusted as known inliers fail the inlier test at the result: "
+             "wrong odometry? the answer bends to fit them")
+    if known["chi2_per_dof"] > CHI2_PER_DOF_WARNING:
+        warn(f"the known inliers' χ² per dof is {known['chi2_per_dof']:.3g}, far above the ≈1 their information "
+             f"matrices predict (> {CHI2_PER_DOF_WARNING:g}): some trusted edge is wrong or overconfident")
+
+
+def _edges_text(graph, edges: list, shown: int = 5) -> str:
+    """``"3 edges (lines 12, 40, 77)"``: how many, and the file lines of the first ``shown``."""
+    lines = graph.edge_lines
+    where = ", ".join(str(int(lines[k])) if lines is not None else f"edge {k}" for k in edges[:shown])
+    more = f", … {len(edges) - shown} more" if len(edges) > shown else ""
+    return f"{len(edges)} edge{'s' if len(edges) != 1 else ''} (line{'s' if len(edges) != 1 else ''} {where}{more})"
 
 
 def outlier_line(graph, weights) -> str:

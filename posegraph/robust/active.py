@@ -5,7 +5,7 @@ The symbolic work of a solve — the chordal system's pattern and CHOLMOD analys
 (:func:`posegraph.init.chordal.chordal_problem`), the solver's Hessian pattern and linear solver
 (:func:`posegraph.solve.analyze`) — depends only on the edge set. :class:`ActiveEdgeSolves` makes
 it for an edge set ``S`` and serves every later *active* set ``A = {w > 0} ⊆ S`` from it: the
-solve runs over ``S`` with the edges of ``S \ A`` at weight 0 (zero values in the analysed
+solve runs over ``S`` with the edges of ``S ∖ A`` at weight 0 (zero values in the analysed
 pattern), and a vertex that the active edges leave without a held vertex in its component — e.g.
 one whose every edge has weight 0 — is held at its pose (the start's in LM, the file's in the
 chordal solve), exactly as in the subgraph of the active edges, whose problem is solved (round-off

@@ -15,6 +15,14 @@ The pipeline (``docs/robust.md`` measures it and the alternatives):
    (alternating minimisation over the poses and the binary weights), so it ends; it rejects the
    outliers the loose start let in and keeps the inliers.
 
+3. **Trust, checked** (:mod:`posegraph.robust.trust`): the known inliers keep weight 1 throughout,
+   but by default (``known_inliers="odometry"``) a pair of consecutive vertices joined by parallel
+   edges has none of them trusted until GNC has kept one (the first in file order is trusted only
+   where GNC kept none); and at the result every known inlier whose ``s`` exceeds ``c̄²``, or
+   that every edge spanning it contradicts, is released — steps 1 and 2 run again without
+   trusting it — unless ``strict_known_inliers``. One wrong trusted edge would otherwise bend the
+   answer while passing every other test.
+
 No outer iteration re-reads or re-analyses the graph, and each warm-starts from the last. The
 symbolic analyses are shared by all solves (:class:`posegraph.robust.active.ActiveEdgeSolves`):
 one made for an edge set serves every later set of edges with nonzero weight inside it, the
@@ -36,6 +44,9 @@ from posegraph.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
 from posegraph.robust.starts import known_inlier_mask, robust_chordal_start, squared_residuals
+from posegraph.robust.trust import (
+    contradicted_odometry, first_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask,
+)
 
 __all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
 
@@ -53,6 +64,11 @@ MAX_TLS_ROUNDS = 20
 """Cap on the rounds of :func:`tls_alternation` (each lowers the TLS cost, so it ends; seen: 1–3)."""
 
 
+MAX_RELEASE_ROUNDS = 3
+"""Most re-runs after releasing known inliers that failed the check (:mod:`posegraph.robust.trust`);
+one suffices when a single wrong edge was trusted (a released edge is rejected, and the rest fit)."""
+
+
 @dataclass
 class RobustResult:
     """Outcome of :func:`optimize_robust`."""
@@ -65,14 +81,22 @@ class RobustResult:
     """:class:`~posegraph.solve.OptimizeResult` of the last least-squares solve (over the inliers:
     its ``final_cost`` is ``½ Σ w eᵀΩe``)."""
     start: GncResult
-    """The GNC run that made the start and the first inlier guess."""
+    """The GNC run that made the start and the first inlier guess (of the last run, if released)."""
     history: list = field(default_factory=list)
     """:class:`~posegraph.robust.gnc.GncIteration` per outer iteration, GNC's then the TLS rounds' (μ = ∞)."""
     seconds_start: float = 0.0
-    """Seconds in step 1 (the start)."""
+    """Seconds in step 1 (the start), summed over runs."""
     seconds_total: float = 0.0
     analyses: int = 0
     """Symbolic analyses made (chordal and solver; :class:`~posegraph.robust.active.ActiveEdgeSolves`)."""
+    known: np.ndarray | None = None
+    """``(m,)`` bool: the edges trusted (kept at weight 1) in the end."""
+    released: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """``(k,)`` 0-based indices of known inliers released because their residual failed the inlier
+    test at a result (:func:`~posegraph.robust.trust.known_inliers_above`); GNC then ran again."""
+    suspicious: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """``(k,)`` indices of trusted edges whose residual exceeds the inlier threshold at the result
+    (none unless ``strict_known_inliers`` or :data:`MAX_RELEASE_ROUNDS` ran out)."""
 
     @property
     def outlier_edges(self) -> np.ndarray:
@@ -93,6 +117,17 @@ class RobustResult:
         )
 
 
+@dataclass
+class _Run:
+    """One GNC run from a start to the end of the TLS rounds, with the edges it trusted."""
+
+    start: GncResult
+    weights: np.ndarray
+    result: object
+    known: np.ndarray
+    seconds_start: float
+
+
 def optimize_robust(
     graph: PoseGraph,
     initial=None,
@@ -102,6 +137,7 @@ def optimize_robust(
     known_inliers="odometry",
     progress=None,
     reanalyse_fraction: float = DEFAULT_REANALYSE_FRACTION,
+    strict_known_inliers: bool = False,
 ) -> RobustResult:
     """Optimise ``graph`` robustly to wrong loop closures by GNC (module docstring).
 
@@ -110,34 +146,83 @@ def optimize_robust(
     :class:`~posegraph.solve.SolverParams` (``loss`` must be None; ``callback`` gets each LM
     iteration of every solve). ``gnc``: :class:`~posegraph.robust.gnc.GncParams` (surrogate
     ``"tls"`` or ``"gm"``, μ schedule, inlier threshold). ``known_inliers``: ``"odometry"``
-    (default: edges between consecutive vertex ids), ``"none"`` or a ``(m,)`` bool mask; these
-    keep weight 1. ``progress`` gets a :class:`~posegraph.robust.gnc.GncIteration` per outer
-    iteration. ``reanalyse_fraction``: when the solves analyse their edge set anew
-    (:class:`~posegraph.robust.active.ActiveEdgeSolves`).
+    (default: one edge per pair of consecutive vertex ids, :meth:`PoseGraph.odometry_mask`; the
+    pairs joined by parallel edges trusted only as :mod:`posegraph.robust.trust` says), ``"none"``
+    or a ``(m,)`` bool mask; these keep weight 1. At the result, known inliers whose residual fails
+    the inlier test are released and GNC runs again without them, unless ``strict_known_inliers``
+    (then they are only reported, in ``suspicious``). ``progress`` gets a
+    :class:`~posegraph.robust.gnc.GncIteration` per outer iteration. ``reanalyse_fraction``: when
+    the solves analyse their edge set anew (:class:`~posegraph.robust.active.ActiveEdgeSolves`).
     """
     begin = time.perf_counter()
     gnc = GncParams() if gnc is None else gnc
     known = known_inlier_mask(graph, known_inliers)
+    by_odometry = known_inliers is None or (isinstance(known_inliers, str) and known_inliers == "odometry")
+    parallel = parallel_odometry_mask(graph) if by_odometry else np.zeros(graph.num_edges, dtype=bool)
     solves = ActiveEdgeSolves(graph, params, reanalyse_fraction=reanalyse_fraction)
+    thresholds = inlier_thresholds(graph.group.dim, graph.num_edges, gnc)
+    history: list = []
+    run = _gnc_run(graph, initial, known & ~parallel, gnc, solves, thresholds, history, progress)
+    fallback = first_edges_of_unkept_pairs(graph, parallel, run.weights >= 0.5)
+    if fallback.any():  # ambiguous pairs GNC kept no edge of: trust their first edge, from here
+        run = _trust_more(graph, run, fallback, solves, thresholds, history, progress)
+    released = np.zeros(graph.num_edges, dtype=bool)
+    seconds_start = run.seconds_start
+    for _ in range(0 if strict_known_inliers else MAX_RELEASE_ROUNDS):
+        doubtful = _doubtful(graph, run, thresholds)
+        if not doubtful.any():
+            break
+        released |= doubtful
+        run = _gnc_run(graph, initial, run.known & ~doubtful, gnc, solves, thresholds, history, progress)
+        seconds_start += run.seconds_start
+    suspicious = _doubtful(graph, run, thresholds)
+    return RobustResult(
+        run.result.poses, run.weights, run.result, run.start, history, seconds_start, time.perf_counter() - begin,
+        solves.analyses, run.known, np.flatnonzero(released), np.flatnonzero(suspicious),
+    )  # fmt: skip
+
+
+def _gnc_run(graph, initial, known, gnc: GncParams, solves, thresholds, history: list, progress) -> _Run:
+    """The start (step 1), then the TLS rounds at μ → ∞ (step 2), trusting ``known`` ``(m,)`` bool."""
+    begin = time.perf_counter()
     if initial is None:
         loose = replace(gnc, inlier_threshold=START_THRESHOLD_FACTOR * inlier_thresholds(graph.group.dim, 1, gnc)[0])
         start = robust_chordal_start(graph, known, loose, solves=solves, progress=progress)
     else:
         start = _gnc_over_least_squares(graph, initial, known, gnc, solves, progress)
     seconds_start = time.perf_counter() - begin
-    thresholds = inlier_thresholds(graph.group.dim, graph.num_edges, gnc)
-    history = list(start.history)
-
-    def judged(poses):
-        return known | (squared_residuals(graph, poses) <= thresholds)
-
+    history.extend(start.history)
     if gnc.loss == "tls":
+        judged = _inlier_test(graph, known, thresholds)
         weights, result = tls_alternation(solves, start.poses, start.inliers | known, judged, history, progress)
     else:  # Geman-McClure: its weights are not binary; one solve with them
         weights = np.where(known, 1.0, start.weights)
         result = solves.least_squares(start.poses, weights)
-    seconds_total = time.perf_counter() - begin
-    return RobustResult(result.poses, weights, result, start, history, seconds_start, seconds_total, solves.analyses)
+    return _Run(start, weights, result, known, seconds_start)
+
+
+def _doubtful(graph, run: _Run, thresholds) -> np.ndarray:
+    """``(m,)`` bool: ``run``'s trusted edges that fail the inlier test at its result, or that every
+    edge spanning them contradicts (:mod:`posegraph.robust.trust`)."""
+    above = known_inliers_above(squared_residuals(graph, run.result.poses), run.known, thresholds)
+    return above | contradicted_odometry(graph, run.known, run.weights >= 0.5)
+
+
+def _trust_more(graph, run: _Run, more: np.ndarray, solves, thresholds, history: list, progress) -> _Run:
+    """TLS rounds from ``run``'s result, trusting ``more`` ``(m,)`` bool edges besides its known ones."""
+    known = run.known | more
+    inliers = (run.weights >= 0.5) | known
+    weights, result = tls_alternation(solves, run.result.poses, inliers, _inlier_test(graph, known, thresholds), history, progress)
+    return _Run(run.start, weights, result, known, run.seconds_start)
+
+
+def _inlier_test(graph, known: np.ndarray, thresholds):
+    """``poses -> (m,) bool``: an edge is an inlier when trusted or ``s = eᵀΩe ≤ c̄²`` at ``poses``."""
+
+    def judged(poses):
+        return known | (squared_residuals(graph, poses) <= thresholds)
+
+    return judged
 
 
 def tls_alternation(solves: ActiveEdgeSolves, poses, inliers, judged, history: list, progress=None):

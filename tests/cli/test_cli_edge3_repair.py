@@ -8,6 +8,8 @@ import warnings
 import numpy as np
 import pytest
 
+from tests.optional import import_or_skip
+
 from tests.cli.conftest import assert_one_error_line, run_cli
 
 
@@ -123,7 +125,7 @@ def test_every_reading_command_takes_the_repair_option(tmp_path, command):
     path = indefinite_file(tmp_path)
     args, module = command_lines(path, tmp_path)[command]
     if module:
-        pytest.importorskip(module)
+        import_or_skip(module, command)
     if command == "info":  # an inspection command describes what optimize would refuse
         run = run_cli(*args)
         assert run.returncode == 0, run.stderr

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.optional import import_or_skip
+
 from tests.cli.conftest import PROJECT_ROOT, assert_one_error_line, run_cli
 
 EXAMPLE = PROJECT_ROOT / "datasets" / "example_sphere.g2o"
@@ -143,7 +145,7 @@ def test_kitti_export_warns_when_ids_are_not_frames(tmp_path):
 
 @pytest.mark.parametrize("uncertain", [False, True])
 def test_open3d_export_marks_edges_as_asked(tmp_path, uncertain):
-    o3d = pytest.importorskip("open3d", reason="export needs Open3D (pip install open3d)")
+    o3d = import_or_skip("open3d", "export --open3d")
     from posegraph.io.g2o import read_g2o
 
     path = tmp_path / "graph.json"

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.optional import import_or_skip
+
 from tests.cli.conftest import assert_one_error_line, run_cli
 from tests.cli.test_cli_optimize import assert_image
 
@@ -30,7 +32,7 @@ def test_plot_refuses_bad_input_and_writes_nothing(tmp_path, shared_dataset):
 
 
 def test_export_reads_back_in_open3d(tmp_path, shared_dataset):
-    o3d = pytest.importorskip("open3d", reason="export needs Open3D (pip install open3d)")
+    o3d = import_or_skip("open3d", "export --open3d")
     from posegraph.io.g2o import read_g2o
 
     source = shared_dataset("parking-garage")

@@ -62,7 +62,9 @@ def test_least_squares_over_all_edges_equals_lm_on_the_subgraph(case):
     assert solves.analyses == 2
     subgraph = edge_subgraph(graph, np.flatnonzero(weights > 0), weights)
     direct = optimize(subgraph, initial=start, params=TIGHT)
-    np.testing.assert_allclose(fitted.poses, direct.poses, rtol=0, atol=1e-9)
+    # The costs agree to round-off; the poses to what round-off moves along the flattest direction
+    # of this weighted problem (3.4e-8 m in 100 m with one OpenBLAS build, 1e-10 with another).
+    np.testing.assert_allclose(fitted.poses, direct.poses, rtol=0, atol=1e-7)
     assert fitted.final_cost == pytest.approx(direct.final_cost, rel=1e-12)
     np.testing.assert_array_equal(fitted.poses[lone], start[lone])  # held at its start pose
     np.testing.assert_array_equal(fitted.poses[pair[0]], start[pair[0]])

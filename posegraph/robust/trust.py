@@ -1,0 +1,99 @@
+"""Which edges robust optimisation trusts, and the check of that trust at its result.
+
+:func:`posegraph.robust.optimize_robust` keeps its known inliers (by default the odometry edges,
+:meth:`~posegraph.graph.PoseGraph.odometry_mask`) at weight 1 whatever their residual. One wrong
+known inlier then bends the whole answer, and the test that rejects wrong loop closures can no
+longer see it: the edges that disagree with it are rejected instead. Two guards:
+
+* **Ambiguous pairs** (:func:`parallel_odometry_mask`): two vertices that are neighbours in id
+  order but joined by more than one edge (a duplicate, or a false match parallel to the
+  odometry). Which of the parallel edges is the odometry cannot be told from the file, so none
+  of them is trusted at first; GNC keeps the one the rest of the graph agrees with. Where it
+  keeps none (nothing else spans the pair), the first in file order is trusted after all
+  (:func:`first_edges_of_unkept_pairs`), so the graph does not fall apart there.
+* **The check**, at the result: a known inlier whose squared whitened residual ``s = eᵀΩe``
+  exceeds the inlier threshold ``c̄²`` would have been rejected had it not been trusted
+  (:func:`known_inliers_above`); and a trusted odometry edge that fits exactly because every edge
+  spanning it was rejected is contradicted by all of them (:func:`contradicted_odometry`). Such
+  edges are released (GNC runs again without trusting them) unless the caller asks for
+  strictness, and named either way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.graph import PoseGraph, neighbour_pairs
+
+__all__ = [
+    "parallel_odometry_mask", "first_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",
+    "known_chi2_per_dof",
+]
+
+
+def parallel_odometry_mask(graph: PoseGraph) -> np.ndarray:
+    """``(m,)`` bool: the edges between neighbours in id order whose two vertices are joined by
+    more than one edge (either way round)."""
+    pair = neighbour_pairs(graph)
+    neighbours = pair >= 0
+    edges_per_pair = np.bincount(pair[neighbours], minlength=max(graph.num_vertices, 1))
+    return neighbours & (edges_per_pair[np.maximum(pair, 0)] > 1)
+
+
+def first_edges_of_unkept_pairs(graph: PoseGraph, parallel: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """``(m,)`` bool: the odometry edge (the first in file order) of each ambiguous pair
+    (``parallel``, :func:`parallel_odometry_mask`) none of whose edges is ``kept`` ``(m,)`` bool."""
+    pair = neighbour_pairs(graph)
+    has_kept = np.zeros(max(graph.num_vertices, 1), dtype=bool)
+    has_kept[pair[parallel & kept]] = True
+    return parallel & graph.odometry_mask() & ~has_kept[np.maximum(pair, 0)]
+
+
+MIN_CONTRADICTING_EDGES = 3
+"""A trusted odometry edge is contradicted (:func:`contradicted_odometry`) when at least this many
+other edges span it and every one of them was rejected. One or two rejected edges across a stretch
+of trajectory are what random wrong loop closures look like where no true one spans it (the end of
+a trajectory that never returns); a wrong odometry edge cuts every cycle through it, and GNC then
+rejects every edge spanning it (on the 48-vertex grid of the tests: 21 loop closures)."""
+
+
+def contradicted_odometry(graph: PoseGraph, known: np.ndarray, kept: np.ndarray, minimum: int = MIN_CONTRADICTING_EDGES) -> np.ndarray:
+    """``(m,)`` bool: the trusted edges between neighbours in id order (``known`` ``(m,)``) that at
+    least ``minimum`` untrusted edges span, none of them ``kept`` ``(m,)`` bool.
+
+    An edge joining ranks ``a < b`` spans the pair ``(p, p + 1)`` when ``a ≤ p < b``: the odometry
+    chain from ``a`` to ``b`` runs through it, so the edge closes a cycle with it. A wrong trusted
+    odometry edge bends every such cycle, and the inlier test then rejects all of them while the
+    trusted edge itself fits exactly: its residual alone cannot tell (:func:`known_inliers_above`).
+    """
+    rank = np.empty(graph.num_vertices, dtype=np.int64)
+    rank[np.argsort(graph.ids, kind="stable")] = np.arange(graph.num_vertices)
+    low = np.minimum(rank[graph.edge_from], rank[graph.edge_to])
+    high = np.maximum(rank[graph.edge_from], rank[graph.edge_to])
+    candidates = ~np.asarray(known, dtype=bool)
+
+    def spanning(mask):  # (n,) edges of ``mask`` spanning each pair (p, p + 1), by a difference array
+        steps = np.bincount(low[mask], minlength=graph.num_vertices + 1) - np.bincount(high[mask], minlength=graph.num_vertices + 1)
+        return np.cumsum(steps)[: max(graph.num_vertices, 1)]
+
+    total, held = spanning(candidates), spanning(candidates & np.asarray(kept, dtype=bool))
+    pair = neighbour_pairs(graph)
+    odometry = np.asarray(known, dtype=bool) & (pair >= 0)
+    where = np.maximum(pair, 0)
+    return odometry & (total[where] >= minimum) & (held[where] == 0)
+
+
+def known_inliers_above(squared_residuals: np.ndarray, known: np.ndarray, thresholds) -> np.ndarray:
+    """``(m,)`` bool: the known inliers whose ``s = eᵀΩe`` exceeds their inlier threshold ``c̄²``
+    (a scalar or ``(m,)``): the ones GNC would have rejected had they not been trusted."""
+    return np.asarray(known, dtype=bool) & (np.asarray(squared_residuals) > thresholds)
+
+
+def known_chi2_per_dof(squared_residuals: np.ndarray, known: np.ndarray, dimension: int) -> float:
+    """``Σ s / (d · count)`` over the known inliers: ≈ 1 when their residuals are as their
+    information matrices predict (``E[s] = d`` for a d-dimensional Gaussian residual); NaN for none.
+
+    A per-edge ratio, not χ²/dof of the graph: the known inliers alone (a chain) leave no degree of
+    freedom, yet each is measured against the same poses as every other edge."""
+    count = int(np.count_nonzero(known))
+    return float(np.sum(np.asarray(squared_residuals)[known]) / (dimension * count)) if count else float("nan")

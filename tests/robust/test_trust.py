@@ -1,0 +1,116 @@
+"""Which edges GNC trusts: parallel edges between consecutive vertices are not taken on faith, and
+a trusted edge that fails the inlier test at the result is released (or, strict, named)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from datasets.synthetic import grid, inject_outliers, random_relative_poses
+from posegraph.graph import PoseGraph
+from posegraph.robust.pipeline import optimize_robust
+from posegraph.robust.trust import (
+    contradicted_odometry,
+    first_edges_of_unkept_pairs,
+    known_chi2_per_dof,
+    known_inliers_above,
+    parallel_odometry_mask,
+)
+from posegraph.solve import optimize
+from posegraph.solve.residuals import cost
+
+
+def _chain(ids, pairs):
+    n, m = len(ids), len(pairs)
+    index = {v: k for k, v in enumerate(ids)}
+    return PoseGraph(
+        ids=np.asarray(ids, dtype=np.int64), poses=np.tile(np.eye(4), (n, 1, 1)),
+        edge_from=np.array([index[a] for a, _ in pairs], dtype=np.int64),
+        edge_to=np.array([index[b] for _, b in pairs], dtype=np.int64),
+        measurements=np.tile(np.eye(4), (m, 1, 1)), information=np.tile(np.eye(6), (m, 1, 1)),
+    )  # fmt: skip
+
+
+def test_parallel_edges_between_neighbours_are_ambiguous_whichever_way_round():
+    graph = _chain([0, 1, 2, 3], [(0, 1), (1, 2), (2, 1), (2, 3), (0, 2), (0, 2), (3, 2)])
+    assert parallel_odometry_mask(graph).tolist() == [False, True, True, True, False, False, True]
+    # the odometry of each pair is its first edge; the parallel loop closures 0-2 are not neighbours
+    assert graph.odometry_mask().tolist() == [True, True, False, True, False, False, False]
+
+
+def test_an_ambiguous_pair_falls_back_to_its_first_edge_only_when_none_of_its_edges_was_kept():
+    graph = _chain([0, 1, 2, 3], [(0, 1), (1, 2), (2, 1), (2, 3), (3, 2)])
+    parallel = parallel_odometry_mask(graph)
+    kept = np.array([True, False, True, False, False])  # pair 1-2 kept its second edge; pair 2-3 kept none
+    assert first_edges_of_unkept_pairs(graph, parallel, kept).tolist() == [False, False, False, True, False]
+    assert not first_edges_of_unkept_pairs(graph, parallel, np.ones(5, bool)).any()
+
+
+def test_a_trusted_edge_is_contradicted_when_every_edge_spanning_it_was_rejected():
+    chain = [(k, k + 1) for k in range(5)]
+    graph = _chain(list(range(6)), chain + [(0, 3), (3, 1), (2, 4), (0, 5)])
+    known = np.array([True] * 5 + [False] * 4)
+    kept = np.array([True] * 5 + [False, False, False, True])
+    assert not contradicted_odometry(graph, known, kept).any()  # (0, 5) spans every pair, and was kept
+    kept[-1] = False
+    # edges spanning each pair 0..4: 2, 3, 4, 2, 1 — at least 3, all rejected: pairs 1 and 2
+    assert contradicted_odometry(graph, known, kept).tolist() == [False, True, True, False, False] + [False] * 4
+    assert contradicted_odometry(graph, known, kept, minimum=5).sum() == 0
+
+
+def test_known_inliers_above_the_threshold_and_their_chi2_per_dof():
+    s = np.array([1.0, 20.0, 30.0, 2.0])
+    known = np.array([True, True, False, True])
+    assert known_inliers_above(s, known, 16.81).tolist() == [False, True, False, False]
+    assert known_chi2_per_dof(s, known, 6) == pytest.approx(23.0 / 18.0)
+    assert np.isnan(known_chi2_per_dof(s, np.zeros(4, bool), 6))
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return grid(4, 4, 3, seed=3).graph
+
+
+@pytest.mark.parametrize("wrong_first", [False, True])
+def test_wrong_edges_parallel_to_the_odometry_are_found_whichever_comes_first(clean, wrong_first):
+    """With the wrong edge first in file order, trusting the first edge of each pair would keep the
+    wrong one and reject the odometry it contradicts; GNC must judge both."""
+    graph, indices = inject_outliers(clean, fraction=0.3, seed=4, on_odometry=3, on_loop_closures=2, wrong_first=wrong_first)
+    assert np.count_nonzero(graph.odometry_mask()[indices]) == (3 if wrong_first else 0)
+    robust = optimize_robust(graph)
+    np.testing.assert_array_equal(robust.outlier_edges, np.sort(indices))
+    assert cost(clean, robust.poses) == pytest.approx(optimize(clean).final_cost, rel=1e-7)
+    assert robust.released.size == 0 and robust.suspicious.size == 0
+    assert not robust.known[indices].any()
+
+
+def _wrong_odometry(clean, count=2, seed=5):
+    """``clean`` with ``count`` odometry measurements replaced by random poses (no parallel edge
+    tells them apart), and their indices."""
+    rng = np.random.default_rng(seed)
+    odometry = np.flatnonzero(clean.odometry_mask())
+    wrong = np.sort(rng.choice(odometry[5:-5], count, replace=False))
+    measurements = clean.measurements.copy()
+    measurements[wrong] = random_relative_poses(rng, count, 5.0)
+    return replace(clean, measurements=measurements, edge_source=None), wrong
+
+
+def test_a_wrong_trusted_edge_is_released_and_then_rejected(clean):
+    graph, wrong = _wrong_odometry(clean)
+    robust = optimize_robust(graph)
+    assert set(wrong) <= set(robust.released)
+    np.testing.assert_array_equal(robust.outlier_edges, wrong)
+    assert robust.suspicious.size == 0 and not robust.known[wrong].any()
+    without = replace(clean, edge_from=np.delete(clean.edge_from, wrong), edge_to=np.delete(clean.edge_to, wrong),
+                      measurements=np.delete(clean.measurements, wrong, 0), information=np.delete(clean.information, wrong, 0))
+    assert cost(without, robust.poses) == pytest.approx(optimize(without).final_cost, rel=1e-7)
+
+
+def test_strict_known_inliers_are_kept_and_named(clean):
+    graph, wrong = _wrong_odometry(clean)
+    robust = optimize_robust(graph, strict_known_inliers=True)
+    assert robust.released.size == 0
+    assert set(wrong) <= set(robust.suspicious)
+    assert robust.known[wrong].all() and (robust.weights[wrong] == 1).all()
