@@ -3,6 +3,7 @@
     python -m benchmarks.bench_robust                                   # ours on all 12 cases, gtsam on sphere2500 + 20 %
     python -m benchmarks.bench_robust --gtsam all --gtsam-cap 400       # gtsam on every case, 400 s each at most
     python -m benchmarks.bench_robust --gtsam none --data /tmp/robust   # ours only, files kept in /tmp/robust
+    python -m benchmarks.bench_robust --kind wrong-first --fractions 10,20,50 --gtsam smallGrid3D_20   # wrong edges on consecutive pairs
 
 Cases: sphere2500, parking-garage and torus3D (shared datasets; smallGrid3D besides, where gtsam finishes) with 10, 20, 50 and 80 % random
 outliers per real loop closure (``python -m datasets.synthetic inject … --seed 1``; indices in
@@ -16,6 +17,11 @@ Columns: precision and recall of the outlier set (edges with final weight < 0.5 
 injected ones), the cost on the *clean* graph at the result relative to the clean optimum
 (``optimize(clean)``), ATE (translation RMS after rigid alignment) against the clean optimum,
 seconds, and gtsam's seconds over ours. Figures are recorded in ``docs/robust.md``.
+
+``--kind``: ``random`` (the outliers join free vertex pairs), ``parallel`` (besides, :data:`PARALLEL_SHARE`
+of them each lie parallel to random odometry edges and to random loop closures, after the edge
+they duplicate in file order) or ``wrong-first`` (the same, each before the edge it duplicates: the
+wrong edge is then the first between its two consecutive vertices).
 """
 
 from __future__ import annotations
@@ -37,15 +43,25 @@ FRACTIONS = (10, 20, 50, 80)
 HEADLINE = "sphere2500_20"
 
 
-def _case_file(data: Path, graph: str, percent: int) -> Path:
-    """``data/GRAPH_PERCENT.g2o`` (and its ``.outliers.txt``), made with seed 1 when absent."""
-    path = data / f"{graph}_{percent}.g2o"
+KINDS = {"random": "", "parallel": "p", "wrong-first": "w"}
+"""``--kind`` values and the suffix of their case names (``sphere2500_20w``)."""
+PARALLEL_SHARE = 0.02
+"""Share of a ``parallel`` / ``wrong-first`` case's outliers parallel to odometry edges, and again to loop closures."""
+
+
+def _case_file(data: Path, graph: str, percent: int, kind: str = "random") -> Path:
+    """``data/GRAPH_PERCENT[p|w].g2o`` (and its ``.outliers.txt``), made with seed 1 when absent."""
+    path = data / f"{graph}_{percent}{KINDS[kind]}.g2o"
     if not path.exists():
-        subprocess.run(
-            [sys.executable, "-m", "datasets.synthetic", "inject", str(SHARED / f"{graph}.g2o"),
-             "--fraction", str(percent / 100), "--seed", "1", "-o", str(path)],
-            check=True, cwd=ROOT, stdout=subprocess.DEVNULL,
-        )  # fmt: skip
+        argv = [sys.executable, "-m", "datasets.synthetic", "inject", str(SHARED / f"{graph}.g2o"),
+                "--fraction", str(percent / 100), "--seed", "1", "-o", str(path)]  # fmt: skip
+        if kind != "random":
+            from posegraph.io.g2o import read_g2o
+
+            loops = int(np.count_nonzero(~read_g2o(SHARED / f"{graph}.g2o").odometry_mask()))
+            each = max(1, round(PARALLEL_SHARE * round(percent / 100 * loops)))
+            argv += ["--on-odometry", str(each), "--on-loop-closures", str(each)] + (["--wrong-first"] if kind == "wrong-first" else [])
+        subprocess.run(argv, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
     return path
 
 
@@ -116,7 +132,7 @@ def _gtsam_cells(outcome, seconds: float, order, args) -> tuple[str, str]:
     return _cells(_metrics(found, args[0], unsorted, *args[1:]), gtsam_seconds), f"{ratio:.0f}" if ratio >= 10 else f"{ratio:.1f}"
 
 
-def run(data: Path, gtsam_cases: set, cap: float, reuse: bool, log=print) -> None:
+def run(data: Path, gtsam_cases: set, cap: float, reuse: bool, log=print, kind="random", fractions=FRACTIONS) -> None:
     from posegraph.io.g2o import read_g2o
     from posegraph.solve import optimize
 
@@ -127,8 +143,8 @@ def run(data: Path, gtsam_cases: set, cap: float, reuse: bool, log=print) -> Non
         clean = read_g2o(SHARED / f"{name}.g2o")
         reference = optimize(clean)
         order = np.argsort(clean.ids)
-        for percent in FRACTIONS:
-            case, path = f"{name}_{percent}", _case_file(data, name, percent)
+        for percent in fractions:
+            case, path = f"{name}_{percent}{KINDS[kind]}", _case_file(data, name, percent, kind)
             truth = np.loadtxt(path.with_suffix(".outliers.txt"), dtype=np.int64)
             args = (truth, clean, reference.poses, reference.final_cost)
             seconds, found, poses = run_ours(path, data / f"ours_{case}.g2o")
@@ -148,11 +164,16 @@ def main(argv=None) -> int:
     parser.add_argument("--gtsam-cap", type=float, default=400.0, help="seconds before a gtsam run is stopped (default 400)")
     parser.add_argument("--reuse-gtsam", action="store_true",
                         help="use gtsam reports already in --data (gtsam_CASE.json/.npy) instead of running gtsam again")
+    parser.add_argument("--kind", choices=tuple(KINDS), default="random",
+                        help="where the outliers lie (module docstring; default random)")
+    parser.add_argument("--fractions", default=",".join(map(str, FRACTIONS)),
+                        help=f"comma-separated outlier percentages (default {','.join(map(str, FRACTIONS))})")
     args = parser.parse_args(argv)
     args.data.mkdir(parents=True, exist_ok=True)
-    every = {f"{g}_{p}" for g in GRAPHS for p in FRACTIONS}
+    fractions = tuple(int(p) for p in args.fractions.split(","))
+    every = {f"{g}_{p}{KINDS[args.kind]}" for g in GRAPHS for p in fractions}
     cases = every if args.gtsam == "all" else set() if args.gtsam == "none" else set(args.gtsam.split(","))
-    run(args.data, cases, args.gtsam_cap, args.reuse_gtsam)
+    run(args.data, cases, args.gtsam_cap, args.reuse_gtsam, kind=args.kind, fractions=fractions)
     return 0
 
 
