@@ -294,6 +294,27 @@ def test_injected_outliers_on_a_planar_graph_are_planar_and_wrong(tmp_path):
     assert "EDGE_SE2" in path.read_text() and "SE3" not in path.read_text()
 
 
+@pytest.mark.parametrize("wrong_first", [False, True])
+def test_inject_outliers_parallel_to_odometry_and_loop_closures(wrong_first):
+    clean = grid(4, 3, 3, seed=5).graph
+    graph, indices = synthetic.inject_outliers(clean, count=9, seed=9, on_odometry=3, on_loop_closures=2, wrong_first=wrong_first)
+    kept = np.setdiff1d(np.arange(graph.num_edges), indices)
+    np.testing.assert_array_equal(graph.measurements[kept], clean.measurements)
+    codes, clean_codes = _pair_codes(graph), _pair_codes(clean)
+    parallel = indices[np.isin(codes[indices], clean_codes)]
+    assert len(parallel) == 5  # the other 4 join free pairs
+    rank = np.argsort(np.argsort(clean.ids))
+    consecutive = np.abs(rank[graph.edge_from[parallel]] - rank[graph.edge_to[parallel]]) == 1
+    assert np.count_nonzero(consecutive) == 3
+    for k in parallel:  # each follows (or precedes) the original edge it duplicates
+        original = kept[np.flatnonzero(codes[kept] == codes[k])[0]]
+        assert (k < original) == wrong_first
+    # Who is the odometry of a duplicated pair: the first edge in file order, so the wrong one iff wrong_first.
+    assert np.count_nonzero(graph.odometry_mask()[indices]) == (3 if wrong_first else 0)
+    with pytest.raises(ValueError, match="exceeds"):
+        synthetic.inject_outliers(clean, count=2, on_odometry=2, on_loop_closures=1)
+
+
 def test_inject_outliers_bad_arguments():
     clean = grid(3, 2, 2, seed=1).graph
     with pytest.raises(ValueError, match="exactly one"):

@@ -84,3 +84,62 @@ def test_interrupt_while_writing_leaves_nothing(monkeypatch, capsys, tmp_path, s
     assert status == 130
     assert "interrupted" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_open3d_that_cannot_load_says_why_and_what_to_install(monkeypatch, capsys, tmp_path, shared_dataset):
+    """Installed but unloadable (Debian without libusb): one line with the loader's reason and the apt package."""
+    import importlib.abc
+    import sys
+
+    class BrokenOpen3D(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "open3d":
+                raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+            return None
+
+    monkeypatch.delitem(sys.modules, "open3d", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [BrokenOpen3D(), *sys.meta_path])
+    status = cli.main(["export", str(shared_dataset("tinyGrid3D")), "--ply", str(tmp_path / "t.ply")])
+    assert status == 2
+    line = one_error_line(capsys)
+    assert "installed but cannot load" in line and "libusb-1.0.so.0" in line and "apt install libusb-1.0-0" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+WARNING_SCRIPT = """
+import sys, warnings
+import posegraph.cli.info as info
+from posegraph.errors import InputWarning
+
+real = info.run
+
+def run(args):
+    warnings.warn_explicit("a library's deprecation", DeprecationWarning, "somelib.py", 1, module="somelib")
+    for _ in range(2):
+        warnings.warn("our note", InputWarning)
+    return real(args)
+
+info.run = run
+from posegraph.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("debug", [False, True])
+def test_only_posegraph_warnings_show_unless_debug(tmp_path, debug):
+    """posegraph's own warnings show every time; another package's deprecation follows Python's
+    default filters (hidden outside __main__), and --debug shows everything."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[2] / "datasets" / "example_sphere.g2o"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONWARNINGS"}
+    argv = [sys.executable, "-c", WARNING_SCRIPT, "info", str(example)] + (["--debug"] if debug else [])
+    run = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=Path(__file__).resolve().parents[2], timeout=120)
+    assert run.returncode == 0, run.stderr
+    lines = run.stderr.splitlines()
+    assert lines.count("posegraph: warning: our note") == 2, run.stderr
+    deprecations = [line for line in lines if "a library's deprecation" in line]
+    assert deprecations == (["posegraph: warning: DeprecationWarning: a library's deprecation"] if debug else []), run.stderr

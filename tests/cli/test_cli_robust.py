@@ -98,6 +98,7 @@ def test_default_report_has_no_robust_fields(corrupted, tmp_path):
         (["--robust-scale", "2"], ["--robust-scale", "--robust"]),
         (["--robust", "gnc", "--reanalyse-fraction", "1.5"], ["--reanalyse-fraction", "[0, 1]"]),
         (["--robust", "huber", "--reanalyse-fraction", "0.5"], ["--reanalyse-fraction", "--robust gnc"]),
+        (["--strict-known-inliers"], ["--strict-known-inliers", "--robust gnc"]),
     ],
 )
 def test_bad_values_exit_2_with_one_line(corrupted, tmp_path, args, fragments):
@@ -116,3 +117,55 @@ def test_drop_outliers_never_overwrites_the_input(corrupted, tmp_path):
     run = run_cli("optimize", path, "-o", path, "--robust", "gnc", "--drop-outliers", "--force")
     assert_one_error_line(run, "--drop-outliers", "input")
     assert path.read_bytes() == before
+
+
+@pytest.fixture(scope="module")
+def wrong_odometry(tmp_path_factory):
+    """A grid with 20 % outliers whose odometry edges on two lines are wrong (no parallel edge tells):
+    ``(path, the two edges' file lines, their indices, the outlier indices)``."""
+    from dataclasses import replace
+
+    from datasets.synthetic import grid, inject_outliers, random_relative_poses
+    from posegraph.io.g2o import read_g2o, write_g2o
+
+    graph, indices = inject_outliers(grid(4, 4, 3, seed=3).graph, fraction=0.2, seed=1)
+    rng = np.random.default_rng(5)
+    wrong = np.sort(rng.choice(np.flatnonzero(graph.odometry_mask())[5:-5], 2, replace=False))
+    measurements = graph.measurements.copy()
+    measurements[wrong] = random_relative_poses(rng, 2, 5.0)
+    path = tmp_path_factory.mktemp("trust") / "wrong_odometry.g2o"
+    write_g2o(path, replace(graph, measurements=measurements, edge_source=None))
+    return path, read_g2o(path).edge_lines[wrong].tolist(), wrong, indices
+
+
+def test_gnc_releases_wrong_odometry_names_its_lines_and_reports_it(wrong_odometry, tmp_path):
+    path, lines, wrong, indices = wrong_odometry
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "o.g2o", "--robust", "gnc", "--report", report, "-q")
+    assert run.returncode == 0, run.stderr
+    released = [line for line in run.stderr_lines if "were released" in line]
+    assert len(released) == 1 and all(str(n) in released[0] for n in lines), run.stderr
+    known = json.loads(report.read_text())["known_inliers"]
+    assert set(wrong.tolist()) <= set(known["released"]) and known["suspicious"] == []
+    assert known["mode"] == "odometry" and known["strict"] is False
+    assert json.loads(report.read_text())["outlier_edges"] == sorted(set(indices.tolist()) | set(wrong.tolist()))
+
+
+def test_strict_known_inliers_keeps_them_and_warns(wrong_odometry, tmp_path):
+    path, lines, wrong, _ = wrong_odometry
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "o.g2o", "--robust", "gnc", "--strict-known-inliers", "--report", report, "-q")
+    assert run.returncode == 0, run.stderr
+    failing = [line for line in run.stderr_lines if "fail the inlier test" in line]
+    assert len(failing) == 1 and all(str(n) in failing[0] for n in lines), run.stderr
+    known = json.loads(report.read_text())["known_inliers"]
+    assert known["released"] == [] and set(wrong.tolist()) <= set(known["suspicious"]) and known["strict"] is True
+
+
+def test_a_clean_gnc_run_warns_of_nothing(corrupted, tmp_path):
+    path, _ = corrupted
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "o.g2o", "--robust", "gnc", "--report", report, "-q")
+    assert run.returncode == 0 and run.stderr == "", run.stderr
+    known = json.loads(report.read_text())["known_inliers"]
+    assert known["released"] == known["suspicious"] == [] and 0 < known["chi2_per_dof"] < 10
