@@ -19,9 +19,11 @@ The pipeline (``docs/robust.md`` measures it and the alternatives):
    but by default (``known_inliers="odometry"``) a pair of consecutive vertices joined by parallel
    edges has none of them trusted until GNC has kept one (the first in file order is trusted only
    where GNC kept none); and at the result every known inlier whose ``s`` exceeds ``c̄²``, or
-   that every edge spanning it contradicts, is released — steps 1 and 2 run again without
-   trusting it — unless ``strict_known_inliers``. One wrong trusted edge would otherwise bend the
-   answer while passing every other test.
+   that every edge spanning it contradicts, is doubted: steps 1 and 2 run again without trusting
+   it, and the doubted edges are released when that answer fits the graph better (a lower
+   truncated cost ``½ Σ min(s, c̄²)``), unless ``strict_known_inliers``. One wrong trusted edge
+   would otherwise bend the answer while passing every other test; random wrong loop closures
+   that happen to span the last stretch of a trajectory doubt a right one, and lose.
 
 No outer iteration re-reads or re-analyses the graph, and each warm-starts from the last. The
 symbolic analyses are shared by all solves (:class:`posegraph.robust.active.ActiveEdgeSolves`):
@@ -45,7 +47,7 @@ from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
 from posegraph.robust.starts import known_inlier_mask, robust_chordal_start, squared_residuals
 from posegraph.robust.trust import (
-    contradicted_odometry, first_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask,
+    contradicted_odometry, first_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )
 
 __all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
@@ -166,20 +168,43 @@ def optimize_robust(
     fallback = first_edges_of_unkept_pairs(graph, parallel, run.weights >= 0.5)
     if fallback.any():  # ambiguous pairs GNC kept no edge of: trust their first edge, from here
         run = _trust_more(graph, run, fallback, solves, thresholds, history, progress)
+    runs = [run]
+
+    def rerun(known):
+        runs.append(_gnc_run(graph, initial, known, gnc, solves, thresholds, history, progress))
+        return runs[-1]
+
+    run, released, suspicious = _release_doubtful(graph, run, rerun, thresholds, strict_known_inliers)
+    return RobustResult(
+        run.result.poses, run.weights, run.result, run.start, history, sum(r.seconds_start for r in runs),
+        time.perf_counter() - begin, solves.analyses, run.known, np.flatnonzero(released), np.flatnonzero(suspicious),
+    )  # fmt: skip
+
+
+def _release_doubtful(graph, run: _Run, rerun, thresholds, strict: bool):
+    """Check ``run``'s trusted edges (:func:`_doubtful`); release the doubtful ones when a run without
+    trusting them (``rerun(known) -> _Run``) fits the graph better: a lower truncated cost
+    (:func:`~posegraph.robust.trust.truncated_cost`, every edge judged alike) by more than half the
+    least threshold, at most :data:`MAX_RELEASE_ROUNDS` times. ``strict``: never release; the edges
+    the better run rejected are named instead. Returns ``(run, released (m,) bool, suspicious (m,)
+    bool)``; suspicious also holds the trusted edges above their threshold at the end."""
     released = np.zeros(graph.num_edges, dtype=bool)
-    seconds_start = run.seconds_start
-    for _ in range(0 if strict_known_inliers else MAX_RELEASE_ROUNDS):
+    suspicious = np.zeros(graph.num_edges, dtype=bool)
+    for _ in range(MAX_RELEASE_ROUNDS):
         doubtful = _doubtful(graph, run, thresholds)
         if not doubtful.any():
             break
+        trial = rerun(run.known & ~doubtful)
+        fits = truncated_cost(squared_residuals(graph, trial.result.poses), thresholds)
+        if fits >= truncated_cost(squared_residuals(graph, run.result.poses), thresholds) - 0.5 * float(np.min(thresholds)):
+            break  # trusting them fits the graph as well: the edges spanning them were wrong, not they
+        if strict:
+            suspicious |= doubtful & (trial.weights < 0.5)
+            break
         released |= doubtful
-        run = _gnc_run(graph, initial, run.known & ~doubtful, gnc, solves, thresholds, history, progress)
-        seconds_start += run.seconds_start
-    suspicious = _doubtful(graph, run, thresholds)
-    return RobustResult(
-        run.result.poses, run.weights, run.result, run.start, history, seconds_start, time.perf_counter() - begin,
-        solves.analyses, run.known, np.flatnonzero(released), np.flatnonzero(suspicious),
-    )  # fmt: skip
+        run = trial
+    suspicious |= known_inliers_above(squared_residuals(graph, run.result.poses), run.known, thresholds)
+    return run, released, suspicious
 
 
 def _gnc_run(graph, initial, known, gnc: GncParams, solves, thresholds, history: list, progress) -> _Run:

@@ -27,7 +27,7 @@ from posegraph.graph import PoseGraph, neighbour_pairs
 
 __all__ = [
     "parallel_odometry_mask", "first_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",
-    "known_chi2_per_dof",
+    "truncated_cost", "known_chi2_per_dof",
 ]
 
 
@@ -87,6 +87,12 @@ def known_inliers_above(squared_residuals: np.ndarray, known: np.ndarray, thresh
     """``(m,)`` bool: the known inliers whose ``s = eᵀΩe`` exceeds their inlier threshold ``c̄²``
     (a scalar or ``(m,)``): the ones GNC would have rejected had they not been trusted."""
     return np.asarray(known, dtype=bool) & (np.asarray(squared_residuals) > thresholds)
+
+
+def truncated_cost(squared_residuals: np.ndarray, thresholds) -> float:
+    """``½ Σ min(s, c̄²)``: the truncated-least-squares cost with every edge judged alike (none
+    trusted), by which two answers to one graph are compared."""
+    return 0.5 * float(np.sum(np.minimum(squared_residuals, thresholds)))
 
 
 def known_chi2_per_dof(squared_residuals: np.ndarray, known: np.ndarray, dimension: int) -> float:

@@ -35,8 +35,9 @@ GRAPHS = [*synthetic.noise_free_cases(), ("all-of-it, seed 11", *synthetic.hard_
 @pytest.mark.parametrize("name, graph, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
 def test_noise_free_measurements_give_the_truth_in_the_gauge(name, graph, truth, linear_solver):
     poses = chordal_initialization(graph, linear_solver=linear_solver)
-    # rtol 1e-10: on the planar graphs with information over 1e-2..1e7, leaves ~10 units out carry ~1e-9
-    np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-10, atol=1e-9)
+    # rtol 1e-9: on the planar graphs with information over 1e-2..1e7, leaves ~10 units out carry ~1e-9
+    # (2.8e-10 relative at 8 units with SuperLU and OpenBLAS's SkylakeX kernels)
+    np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("name, graph, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
