@@ -17,8 +17,8 @@ The pipeline (``docs/robust.md`` measures it and the alternatives):
 
 3. **Trust, checked** (:mod:`posegraph.robust.trust`): the known inliers keep weight 1 throughout,
    but by default (``known_inliers="odometry"``) a pair of consecutive vertices joined by parallel
-   edges has none of them trusted until GNC has kept one (the first in file order is trusted only
-   where GNC kept none); and at the result every known inlier whose ``s`` exceeds ``c̄²``, or
+   edges has none of them trusted until GNC has kept one (where it kept none, the one that fits
+   best is trusted); and at the result every known inlier whose ``s`` exceeds ``c̄²``, or
    that every edge spanning it contradicts, is doubted: steps 1 and 2 run again without trusting
    it, and the doubted edges are released when that answer fits the graph better (a lower
    truncated cost ``½ Σ min(s, c̄²)``), unless ``strict_known_inliers``. One wrong trusted edge
@@ -47,7 +47,7 @@ from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
 from posegraph.robust.starts import known_inlier_mask, robust_chordal_start, squared_residuals
 from posegraph.robust.trust import (
-    contradicted_odometry, first_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
+    contradicted_odometry, best_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )
 
 __all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
@@ -165,8 +165,8 @@ def optimize_robust(
     thresholds = inlier_thresholds(graph.group.dim, graph.num_edges, gnc)
     history: list = []
     run = _gnc_run(graph, initial, known & ~parallel, gnc, solves, thresholds, history, progress)
-    fallback = first_edges_of_unkept_pairs(graph, parallel, run.weights >= 0.5)
-    if fallback.any():  # ambiguous pairs GNC kept no edge of: trust their first edge, from here
+    fallback = best_edges_of_unkept_pairs(graph, parallel, run.weights >= 0.5, squared_residuals(graph, run.result.poses))
+    if fallback.any():  # ambiguous pairs GNC kept no edge of: trust the edge that fits best, from here
         run = _trust_more(graph, run, fallback, solves, thresholds, history, progress)
     runs = [run]
 

@@ -9,8 +9,9 @@ longer see it: the edges that disagree with it are rejected instead. Two guards:
   order but joined by more than one edge (a duplicate, or a false match parallel to the
   odometry). Which of the parallel edges is the odometry cannot be told from the file, so none
   of them is trusted at first; GNC keeps the one the rest of the graph agrees with. Where it
-  keeps none (nothing else spans the pair), the first in file order is trusted after all
-  (:func:`first_edges_of_unkept_pairs`), so the graph does not fall apart there.
+  keeps none (nothing else spans the pair, or too weakly), the one that fits best where the rest
+  of the graph put the two vertices is trusted after all (:func:`best_edges_of_unkept_pairs`), so
+  the graph does not fall apart there.
 * **The check**, at the result: a known inlier whose squared whitened residual ``s = eᵀΩe``
   exceeds the inlier threshold ``c̄²`` would have been rejected had it not been trusted
   (:func:`known_inliers_above`); and a trusted odometry edge that fits exactly because every edge
@@ -26,7 +27,7 @@ import numpy as np
 from posegraph.graph import PoseGraph, neighbour_pairs
 
 __all__ = [
-    "parallel_odometry_mask", "first_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",
+    "parallel_odometry_mask", "best_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",
     "truncated_cost", "known_chi2_per_dof",
 ]
 
@@ -40,13 +41,20 @@ def parallel_odometry_mask(graph: PoseGraph) -> np.ndarray:
     return neighbours & (edges_per_pair[np.maximum(pair, 0)] > 1)
 
 
-def first_edges_of_unkept_pairs(graph: PoseGraph, parallel: np.ndarray, kept: np.ndarray) -> np.ndarray:
-    """``(m,)`` bool: the odometry edge (the first in file order) of each ambiguous pair
-    (``parallel``, :func:`parallel_odometry_mask`) none of whose edges is ``kept`` ``(m,)`` bool."""
+def best_edges_of_unkept_pairs(graph: PoseGraph, parallel: np.ndarray, kept: np.ndarray, squared_residuals: np.ndarray) -> np.ndarray:
+    """``(m,)`` bool: for each ambiguous pair (``parallel``, :func:`parallel_odometry_mask`) none of
+    whose edges is ``kept`` ``(m,)`` bool, its edge of least ``squared_residuals`` ``(m,)``: the one
+    the rest of the graph, placing the two vertices without any of them, agrees with best (ties:
+    the first in file order)."""
     pair = neighbour_pairs(graph)
     has_kept = np.zeros(max(graph.num_vertices, 1), dtype=bool)
     has_kept[pair[parallel & kept]] = True
-    return parallel & graph.odometry_mask() & ~has_kept[np.maximum(pair, 0)]
+    candidates = np.flatnonzero(parallel & ~has_kept[np.maximum(pair, 0)])
+    order = candidates[np.lexsort((candidates, np.asarray(squared_residuals)[candidates], pair[candidates]))]
+    first_of_pair = np.r_[True, pair[order][1:] != pair[order][:-1]] if len(order) else np.zeros(0, dtype=bool)
+    best = np.zeros(graph.num_edges, dtype=bool)
+    best[order[first_of_pair]] = True
+    return best
 
 
 MIN_CONTRADICTING_EDGES = 3

@@ -13,7 +13,7 @@ from posegraph.graph import PoseGraph
 from posegraph.robust.pipeline import optimize_robust
 from posegraph.robust.trust import (
     contradicted_odometry,
-    first_edges_of_unkept_pairs,
+    best_edges_of_unkept_pairs,
     known_chi2_per_dof,
     known_inliers_above,
     parallel_odometry_mask,
@@ -40,12 +40,14 @@ def test_parallel_edges_between_neighbours_are_ambiguous_whichever_way_round():
     assert graph.odometry_mask().tolist() == [True, True, False, True, False, False, False]
 
 
-def test_an_ambiguous_pair_falls_back_to_its_first_edge_only_when_none_of_its_edges_was_kept():
-    graph = _chain([0, 1, 2, 3], [(0, 1), (1, 2), (2, 1), (2, 3), (3, 2)])
+def test_an_ambiguous_pair_falls_back_to_its_best_fitting_edge_only_when_none_of_its_edges_was_kept():
+    graph = _chain([0, 1, 2, 3], [(0, 1), (1, 2), (2, 1), (2, 3), (3, 2), (2, 3)])
     parallel = parallel_odometry_mask(graph)
-    kept = np.array([True, False, True, False, False])  # pair 1-2 kept its second edge; pair 2-3 kept none
-    assert first_edges_of_unkept_pairs(graph, parallel, kept).tolist() == [False, False, False, True, False]
-    assert not first_edges_of_unkept_pairs(graph, parallel, np.ones(5, bool)).any()
+    kept = np.array([True, False, True, False, False, False])  # pair 1-2 kept its second edge; pair 2-3 none
+    s = np.array([0.0, 9.0, 1.0, 5.0, 2.0, 2.0])
+    # pair 2-3: the least residual, and of the two tied the first in file order
+    assert best_edges_of_unkept_pairs(graph, parallel, kept, s).tolist() == [False] * 4 + [True, False]
+    assert not best_edges_of_unkept_pairs(graph, parallel, np.ones(6, bool), s).any()
 
 
 def test_a_trusted_edge_is_contradicted_when_every_edge_spanning_it_was_rejected():
