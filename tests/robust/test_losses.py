@@ -83,10 +83,13 @@ def test_weight_and_second_derivative_are_derivatives(name, scale, ratio):
     loss = make_loss(name, scale)
     h = 1e-5 * min(s, abs(s - c2))
     tol = 1e-6
+    # a central difference of f carries round-off up to ~eps·|f|/h: where ρ is nearly flat (Tukey
+    # just below c², ρ' = 6e-5 of ρ) that, not the derivative, sets the tolerance
+    rounding = lambda f: 4 * np.finfo(float).eps * abs(float(f(s))) / h  # noqa: E731
     rho_prime = _central_difference(loss.rho, s, h)
-    np.testing.assert_allclose(loss.weight(s), rho_prime, rtol=tol, atol=tol * abs(loss.weight(s)) + 1e-13)
+    np.testing.assert_allclose(loss.weight(s), rho_prime, rtol=tol, atol=tol * abs(loss.weight(s)) + 1e-13 + rounding(loss.rho))
     rho_second = _central_difference(loss.weight, s, h)
-    np.testing.assert_allclose(loss.second_derivative(s), rho_second, rtol=tol, atol=1e-12 / c2)
+    np.testing.assert_allclose(loss.second_derivative(s), rho_second, rtol=tol, atol=1e-12 / c2 + rounding(loss.weight))
 
 
 @settings(max_examples=40, deadline=None)
