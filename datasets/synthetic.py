@@ -733,14 +733,8 @@ def inject_outliers(
     join free pairs as above. A parallel outlier follows the edge it duplicates in edge order, or,
     with ``wrong_first``, precedes it (the front end emitted the wrong one first).
     """
-    if (count is None) == (fraction is None):
-        raise ValueError("give exactly one of count and fraction")
     loops = np.flatnonzero(~graph.odometry_mask())
-    if fraction is not None:
-        if not (np.isfinite(fraction) and fraction >= 0):
-            raise ValueError(f"fraction must be a number >= 0, got {fraction!r}")
-        count = int(round(fraction * len(loops)))
-    count = _check_count("count", count, 0)
+    count = _outlier_count(count, fraction, len(loops))
     parallel = _check_count("on_odometry", on_odometry, 0) + _check_count("on_loop_closures", on_loop_closures, 0)
     if parallel > count:
         raise ValueError(f"on_odometry + on_loop_closures = {parallel} exceeds the {count} outliers")
@@ -748,20 +742,42 @@ def inject_outliers(
     pairs = _free_pairs(rng, graph, count - parallel)
     duplicated = _parallel_edges(rng, graph, on_odometry, on_loop_closures)
     pairs = np.concatenate([pairs, np.stack([graph.edge_from[duplicated], graph.edge_to[duplicated]], axis=1)])
-    if translation_range is None:
-        positions = graph.poses[:, :-1, -1]  # (n, 3) or, for SE(2), (n, 2)
-        translation_range = max(1.0, 0.5 * float(np.linalg.norm(np.ptp(positions, axis=0)))) if len(positions) else 1.0
-    if graph.group.matrix_size == 3:  # SE(2): a random angle and planar translation
-        measurements = _random_poses(rng, count, translation_range, graph.group)
-    else:  # SE(3), drawn as random_relative_poses always has (same seed, same outliers)
-        measurements = random_relative_poses(rng, count, translation_range)
+    measurements = _outlier_measurements(rng, graph, count, translation_range)
     donors = rng.choice(loops if len(loops) else np.arange(graph.num_edges), size=count)
 
     positions = _front_end_positions(graph, pairs)
     if wrong_first:
         positions[count - parallel:] = duplicated
     order = np.lexsort((graph.ids[pairs].max(axis=1), positions))  # by position, then newer id, then as drawn
-    pairs, measurements, donors, positions = pairs[order], measurements[order], donors[order], positions[order]
+    return _insert_edges(graph, positions[order], pairs[order], measurements[order], graph.information[donors[order]])
+
+
+def _outlier_count(count: int | None, fraction: float | None, loop_closures: int) -> int:
+    """``count``, or ``fraction`` × ``loop_closures`` rounded; exactly one of the two is given."""
+    if (count is None) == (fraction is None):
+        raise ValueError("give exactly one of count and fraction")
+    if fraction is not None:
+        if not (np.isfinite(fraction) and fraction >= 0):
+            raise ValueError(f"fraction must be a number >= 0, got {fraction!r}")
+        count = int(round(fraction * loop_closures))
+    return _check_count("count", count, 0)
+
+
+def _outlier_measurements(rng: np.random.Generator, graph: PoseGraph, count: int, translation_range: float | None) -> np.ndarray:
+    """``(count, k, k)`` random measurements in ``graph``'s group; ``translation_range`` default: half
+    the diagonal of the bounding box of the graph's positions, at least 1."""
+    if translation_range is None:
+        positions = graph.poses[:, :-1, -1]  # (n, 3) or, for SE(2), (n, 2)
+        translation_range = max(1.0, 0.5 * float(np.linalg.norm(np.ptp(positions, axis=0)))) if len(positions) else 1.0
+    if graph.group.matrix_size == 3:  # SE(2): a random angle and planar translation
+        return _random_poses(rng, count, translation_range, graph.group)
+    return random_relative_poses(rng, count, translation_range)  # SE(3): same seed, same outliers as always
+
+
+def _insert_edges(graph: PoseGraph, positions, pairs, measurements, information) -> tuple[PoseGraph, np.ndarray]:
+    """``graph`` with edge ``k`` (``pairs[k]``, ``measurements[k]``, ``information[k]``) inserted
+    before original edge ``positions[k]`` (sorted); returns it and the new edges' indices in it."""
+    count = len(positions)
     indices = positions + np.arange(count)
     keep = np.ones(graph.num_edges + count, bool)
     keep[indices] = False
@@ -776,7 +792,7 @@ def inject_outliers(
         edge_from=merged(graph.edge_from, pairs[:, 0]),
         edge_to=merged(graph.edge_to, pairs[:, 1]),
         measurements=merged(graph.measurements, measurements),
-        information=merged(graph.information, graph.information[donors]),
+        information=merged(graph.information, information),
         edge_source=None,
         edge_lines=None,  # the injected edges have no line in any file
     )
