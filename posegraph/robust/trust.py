@@ -73,6 +73,11 @@ def contradicted_odometry(graph: PoseGraph, known: np.ndarray, kept: np.ndarray,
     chain from ``a`` to ``b`` runs through it, so the edge closes a cycle with it. A wrong trusted
     odometry edge bends every such cycle, and the inlier test then rejects all of them while the
     trusted edge itself fits exactly: its residual alone cannot tell (:func:`known_inliers_above`).
+
+    Only pairs between two pairs that kept edges span count: a stretch that no kept edge spans out
+    to the first or the last vertex is one no true loop closure reaches (a trajectory that never
+    returns there), and the random wrong loop closures across it, all rejected, say nothing of its
+    odometry. A wrong edge in the middle of the trajectory leaves kept edges on both sides of it.
     """
     rank = np.empty(graph.num_vertices, dtype=np.int64)
     rank[np.argsort(graph.ids, kind="stable")] = np.arange(graph.num_vertices)
@@ -88,7 +93,11 @@ def contradicted_odometry(graph: PoseGraph, known: np.ndarray, kept: np.ndarray,
     pair = neighbour_pairs(graph)
     odometry = np.asarray(known, dtype=bool) & (pair >= 0)
     where = np.maximum(pair, 0)
-    return odometry & (total[where] >= minimum) & (held[where] == 0)
+    covered = np.flatnonzero(held[: graph.num_vertices - 1] > 0)
+    between_covered = np.zeros(max(graph.num_vertices, 1), dtype=bool)
+    if len(covered):
+        between_covered[covered[0] : covered[-1] + 1] = True
+    return odometry & (total[where] >= minimum) & (held[where] == 0) & between_covered[where]
 
 
 def known_inliers_above(squared_residuals: np.ndarray, known: np.ndarray, thresholds) -> np.ndarray:

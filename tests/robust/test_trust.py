@@ -51,15 +51,28 @@ def test_an_ambiguous_pair_falls_back_to_its_best_fitting_edge_only_when_none_of
 
 
 def test_a_trusted_edge_is_contradicted_when_every_edge_spanning_it_was_rejected():
-    chain = [(k, k + 1) for k in range(5)]
-    graph = _chain(list(range(6)), chain + [(0, 3), (3, 1), (2, 4), (0, 5)])
-    known = np.array([True] * 5 + [False] * 4)
-    kept = np.array([True] * 5 + [False, False, False, True])
-    assert not contradicted_odometry(graph, known, kept).any()  # (0, 5) spans every pair, and was kept
+    chain = [(k, k + 1) for k in range(7)]
+    loops = [(0, 2), (5, 7), (1, 4), (5, 2), (3, 6), (1, 6), (0, 7)]
+    graph = _chain(list(range(8)), chain + loops)
+    known = np.array([True] * 7 + [False] * 7)
+    kept = np.array([True] * 7 + [True, True, False, False, False, False, True])
+    assert not contradicted_odometry(graph, known, kept).any()  # (0, 7) spans every pair, and was kept
     kept[-1] = False
-    # edges spanning each pair 0..4: 2, 3, 4, 2, 1 — at least 3, all rejected: pairs 1 and 2
-    assert contradicted_odometry(graph, known, kept).tolist() == [False, True, True, False, False] + [False] * 4
-    assert contradicted_odometry(graph, known, kept, minimum=5).sum() == 0
+    # rejected edges spanning pairs 0..6: 1, 3, 4, 5, 4, 3, 1; kept ones: 1, 1, 0, 0, 0, 1, 1
+    assert np.flatnonzero(contradicted_odometry(graph, known, kept)).tolist() == [2, 3, 4]
+    assert np.flatnonzero(contradicted_odometry(graph, known, kept, minimum=5)).tolist() == [3]
+
+
+def test_a_stretch_no_kept_edge_spans_out_to_the_end_is_not_contradicted():
+    """Random wrong loop closures across the end of a trajectory that never returns there."""
+    chain = [(k, k + 1) for k in range(7)]
+    graph = _chain(list(range(8)), chain + [(0, 2), (1, 4), (2, 5), (3, 7), (2, 6)])
+    known = np.array([True] * 7 + [False] * 5)
+    kept = np.array([True] * 7 + [True] + [False] * 4)
+    # rejected edges spanning pairs 2..5: 3, 4, 3, 2; no kept edge spans any pair after pair 1
+    assert not contradicted_odometry(graph, known, kept).any()
+    # (3, 7) kept: pairs 3..6 covered, and pair 2 (three rejected edges span it) lies between covered pairs
+    assert np.flatnonzero(contradicted_odometry(graph, known, kept | (np.arange(12) == 10))).tolist() == [2]
 
 
 def test_known_inliers_above_the_threshold_and_their_chi2_per_dof():
