@@ -116,6 +116,20 @@ def bench_file(path: Path, repeat: int, gtsam, solve: bool, weights: bool = Fals
             runs["gtsam InitializePose3"] = gtsam_run
         except RuntimeError as err:
             print(f"{path.name}: gtsam InitializePose3 raised: {str(err).strip().splitlines()[0]}")
+    starts = _print_timings(path, graph, runs, repeat, factors if gtsam is not None else None)
+
+    if weights:
+        print("  chordal start cost by rotation weight:")
+        for name, weight in ROTATION_WEIGHTS.items():
+            print(f"    {name:20s} {start_cost_with_rotation_weight(graph, weight):14.7e}")
+
+    if solve:
+        _print_solves(path, graph, starts)
+
+
+def _print_timings(path: Path, graph, runs: dict, repeat: int, factors) -> dict:
+    """Run each start of ``runs`` once (its start) and ``repeat`` times alternating (its seconds);
+    print cost, best and median seconds and the ratio to gtsam's median; return the starts."""
     times = {name: [] for name in runs}
     starts = {name: run() for name, run in runs.items()}  # warm-up, and the starts themselves
     for _ in range(repeat):
@@ -137,27 +151,25 @@ def bench_file(path: Path, repeat: int, gtsam, solve: bool, weights: bool = Fals
             print(f"  {name:28s} {costs[name]:14.7e} {best:9.4f} {median:9.4f} {ratio}")
         else:
             print(f"  {name:28s} {costs[name]:14.7e}")
+    return starts
 
-    if weights:
-        print("  chordal start cost by rotation weight:")
-        for name, weight in ROTATION_WEIGHTS.items():
-            print(f"    {name:20s} {start_cost_with_rotation_weight(graph, weight):14.7e}")
 
-    if solve:
-        reference = REFERENCE_OPTIMUM.get(path.stem)
-        params = SolverParams(method="lm")
-        starts_to_solve = {"chordal": starts["chordal"]}
-        if "gtsam InitializePose3" in starts:
-            from posegraph.gtsam_bridge import values_to_poses
+def _print_solves(path: Path, graph, starts: dict) -> None:
+    """LM from the chordal start and from gtsam's, with the cost against the reference optimum."""
+    reference = REFERENCE_OPTIMUM.get(path.stem)
+    params = SolverParams(method="lm")
+    starts_to_solve = {"chordal": starts["chordal"]}
+    if "gtsam InitializePose3" in starts:
+        from posegraph.gtsam_bridge import values_to_poses
 
-            starts_to_solve["gtsam InitializePose3"] = values_to_poses(starts["gtsam InitializePose3"], graph.ids)
-        for name, start in starts_to_solve.items():
-            seconds, result = _timed(optimize, graph, initial=start, params=params)
-            relative = f"{(result.final_cost - reference) / reference:+.2e}" if reference else "n/a"
-            print(
-                f"  LM from {name}: {result.final_cost:.12g} in {result.iterations} iterations, "
-                f"{seconds:.2f} s ({result.termination}); relative to reference {relative}"
-            )
+        starts_to_solve["gtsam InitializePose3"] = values_to_poses(starts["gtsam InitializePose3"], graph.ids)
+    for name, start in starts_to_solve.items():
+        seconds, result = _timed(optimize, graph, initial=start, params=params)
+        relative = f"{(result.final_cost - reference) / reference:+.2e}" if reference else "n/a"
+        print(
+            f"  LM from {name}: {result.final_cost:.12g} in {result.iterations} iterations, "
+            f"{seconds:.2f} s ({result.termination}); relative to reference {relative}"
+        )
 
 
 def main(argv=None) -> int:
