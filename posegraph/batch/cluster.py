@@ -1,0 +1,65 @@
+"""The Dask cluster a batch runs on: a client given, a scheduler's address, or a local cluster made for it.
+
+``dask.distributed`` is an optional dependency (``pip install "posegraph[batch]"``), imported here
+only, when a batch has files to run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+
+__all__ = ["require_distributed", "batch_client", "default_workers", "DISTRIBUTED_MISSING"]
+
+DISTRIBUTED_MISSING = ("posegraph batch needs Dask's distributed scheduler (dask.distributed), which is not "
+                       'installed: pip install "posegraph[batch]"')
+
+CONNECT_SECONDS = 20
+"""How long to try reaching a ``--scheduler`` address before giving up."""
+
+
+def require_distributed():
+    """The ``distributed`` module, or an :class:`ImportError` saying how to install it."""
+    try:
+        import distributed
+    except ImportError as exc:
+        raise ImportError(DISTRIBUTED_MISSING, name="distributed") from exc
+    return distributed
+
+
+def default_workers() -> int:
+    """Worker processes of a local cluster when none is asked for: one per core."""
+    return os.cpu_count() or 1
+
+
+@contextlib.contextmanager
+def batch_client(*, client=None, scheduler: str | None = None, workers: int | None = None):
+    """Yield a ``distributed.Client``: ``client`` itself; one connected to ``scheduler``
+    (``tcp://host:port``); or one of a local cluster of ``workers`` processes, one thread each
+    (each file's solve is single-threaded; OpenBLAS in each is limited to one thread by Dask's
+    nanny, ``distributed.nanny.pre-spawn-environ``), closed on leaving. A scheduler that cannot be
+    reached is a :class:`~posegraph.batch.options.BatchError`."""
+    if client is not None:
+        yield client
+        return
+    distributed = require_distributed()
+    if scheduler is not None:
+        with _connect(distributed, scheduler) as connected:
+            yield connected
+        return
+    with distributed.LocalCluster(
+        n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None,
+        silence_logs=logging.ERROR,
+    ) as cluster, distributed.Client(cluster, set_as_default=False) as local:
+        yield local
+
+
+def _connect(distributed, address: str):
+    from posegraph.batch.options import BatchError
+
+    try:
+        return distributed.Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        raise BatchError(f"cannot reach the Dask scheduler at {address}: {text}") from None
