@@ -48,11 +48,27 @@ def batch_client(*, client=None, scheduler: str | None = None, workers: int | No
         with _connect(distributed, scheduler) as connected:
             yield connected
         return
-    with distributed.LocalCluster(
+    with _worker_environment(), distributed.LocalCluster(
         n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None,
         silence_logs=logging.ERROR,
     ) as cluster, distributed.Client(cluster, set_as_default=False) as local:
         yield local
+
+
+WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+"""What the nanny sets in each local worker process before it starts: one BLAS thread, as a
+``posegraph optimize`` process runs. Dask's default also sets ``MALLOC_TRIM_THRESHOLD_`` to 64 kB,
+which gives freed memory back to the system at once, and which the command line then leaves alone
+(:func:`posegraph.cli.startup.keep_freed_memory` yields to a user's malloc settings): every file's
+arrays page-faulted anew, and the files ran about 2x slower than in ``posegraph optimize``
+processes (9 shared graphs, 2 workers; docs/benchmarks.md). Without it the worker keeps freed
+memory as the command line does."""
+
+
+def _worker_environment():
+    import dask
+
+    return dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRONMENT})
 
 
 def _connect(distributed, address: str):
