@@ -135,8 +135,10 @@ def test_summary_json_and_csv_hold_the_same_rows(tmp_path):
 
 @pytest.fixture(scope="module")
 def client():
+    from posegraph.batch.cluster import LOCAL_CLUSTER_OPTIONS, kept_environment
+
     distributed = import_or_skip("distributed", "optimize_many")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with kept_environment(), distributed.LocalCluster(n_workers=2, **LOCAL_CLUSTER_OPTIONS) as cluster:
         with distributed.Client(cluster, set_as_default=False) as connected:
             yield connected
 
@@ -163,3 +165,14 @@ def test_optimize_many_with_a_client(client, shared_dataset, tmp_path):
     assert [row["status"] for row in again] == ["skipped", "skipped"]
     assert [row["final_cost"] for row in again] == [row["final_cost"] for row in rows[:2]]
     assert client.status == "running"  # a client given is not closed
+
+
+def test_a_local_cluster_leaves_the_callers_environment_as_it_was(shared_dataset, tmp_path, monkeypatch):
+    import posegraph
+
+    import_or_skip("distributed", "optimize_many")
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MALLOC_TRIM_THRESHOLD_"):
+        monkeypatch.delenv(name, raising=False)
+    before = dict(os.environ)
+    [row] = posegraph.optimize_many([shared_dataset("tinyGrid3D")], tmp_path, workers=1)
+    assert row["status"] == "ok" and dict(os.environ) == before

@@ -10,7 +10,7 @@ import contextlib
 import logging
 import os
 
-__all__ = ["require_distributed", "batch_client", "default_workers", "DISTRIBUTED_MISSING"]
+__all__ = ["require_distributed", "batch_client", "default_workers", "kept_environment", "DISTRIBUTED_MISSING"]
 
 DISTRIBUTED_MISSING = ("posegraph batch needs Dask's distributed scheduler (dask.distributed), which is not "
                        'installed: pip install "posegraph[batch]"')
@@ -48,11 +48,35 @@ def batch_client(*, client=None, scheduler: str | None = None, workers: int | No
         with _connect(distributed, scheduler) as connected:
             yield connected
         return
-    with _worker_environment(), distributed.LocalCluster(
-        n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None,
-        silence_logs=logging.ERROR,
+    with kept_environment(), _worker_environment(), distributed.LocalCluster(
+        n_workers=workers or default_workers(), silence_logs=logging.ERROR, **LOCAL_CLUSTER_OPTIONS,
     ) as cluster, distributed.Client(cluster, set_as_default=False) as local:
         yield local
+
+
+LOCAL_CLUSTER_OPTIONS = dict(
+    threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False},
+)
+"""``distributed.LocalCluster`` options of a batch's local cluster: worker processes of one thread,
+no dashboard. The scheduler serves HTTP (health checks) even without one, on port 8787 unless told
+otherwise, and warns when another cluster on the machine holds that port: so a free port of the
+loopback interface."""
+
+
+@contextlib.contextmanager
+def kept_environment():
+    """Leave this process's environment variables as they were on entry, whatever happens inside.
+
+    A nanny sets its ``pre-spawn-environ`` variables in the process that starts the workers (the
+    caller's) and leaves them there; without this, a batch would leave ``OPENBLAS_NUM_THREADS=1``
+    and the rest in the caller's environment, for every process it starts afterwards."""
+    saved = dict(os.environ)
+    try:
+        yield
+    finally:
+        for name in set(os.environ) - set(saved):
+            del os.environ[name]
+        os.environ.update(saved)
 
 
 WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}

@@ -156,8 +156,10 @@ def test_a_changed_input_or_other_options_are_redone(inputs, tmp_path):
 
 
 def test_batch_runs_on_the_cluster_scheduler_names(inputs, references, tmp_path):
+    from posegraph.batch.cluster import LOCAL_CLUSTER_OPTIONS, kept_environment
+
     distributed = import_or_skip("distributed", "--scheduler")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with kept_environment(), distributed.LocalCluster(n_workers=2, **LOCAL_CLUSTER_OPTIONS) as cluster:
         run = run_cli("batch", *inputs, "-o", tmp_path, "--scheduler", cluster.scheduler_address)
         ran = cluster.scheduler.task_prefixes.get("optimize_file")
         assert ran is not None and sum(ran.state_counts.values()) >= len(inputs)
