@@ -37,9 +37,9 @@ def default_workers() -> int:
 def batch_client(*, client=None, scheduler: str | None = None, workers: int | None = None):
     """Yield a ``distributed.Client``: ``client`` itself; one connected to ``scheduler``
     (``tcp://host:port``); or one of a local cluster of ``workers`` processes, one thread each
-    (each file's solve is single-threaded; OpenBLAS in each is limited to one thread by Dask's
-    nanny, ``distributed.nanny.pre-spawn-environ``), closed on leaving. A scheduler that cannot be
-    reached is a :class:`~posegraph.batch.options.BatchError`."""
+    and one BLAS thread (:data:`WORKER_ENVIRONMENT`), ignoring Ctrl-C (this process takes it
+    and closes the cluster), closed on leaving. A scheduler that cannot be reached is a
+    :class:`~posegraph.batch.options.BatchError`."""
     if client is not None:
         yield client
         return
@@ -48,10 +48,34 @@ def batch_client(*, client=None, scheduler: str | None = None, workers: int | No
         with _connect(distributed, scheduler) as connected:
             yield connected
         return
-    with kept_environment(), _worker_environment(), distributed.LocalCluster(
-        n_workers=workers or default_workers(), silence_logs=logging.ERROR, **LOCAL_CLUSTER_OPTIONS,
-    ) as cluster, distributed.Client(cluster, set_as_default=False) as local:
+    with kept_environment(), _worker_environment(), contextlib.ExitStack() as started:
+        with _workers_ignore_interrupts():
+            cluster = started.enter_context(distributed.LocalCluster(
+                n_workers=workers or default_workers(), silence_logs=logging.ERROR, **LOCAL_CLUSTER_OPTIONS))
+            local = started.enter_context(distributed.Client(cluster, set_as_default=False))
         yield local
+
+
+@contextlib.contextmanager
+def _workers_ignore_interrupts():
+    """Ignore Ctrl-C (SIGINT) while the local workers are started, so that they ignore it too.
+
+    Ctrl-C goes to every process of the terminal's foreground group, the workers included; each
+    would die printing a traceback, while this process closes the cluster in order (its ``with``
+    blocks). A signal ignored is still ignored after ``exec``, so the worker processes started
+    inside never see Ctrl-C; this process takes it again once they run (a press during the
+    start-up, under a second, is lost). Only from the main thread, where Python handles signals."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 LOCAL_CLUSTER_OPTIONS = dict(

@@ -85,7 +85,10 @@ def _run_jobs(client, jobs: list, todo: list, rows: list, progress) -> None:
 
     from posegraph.batch.task import optimize_file
 
-    futures = {client.submit(optimize_file, jobs[k], pure=False, priority=_size(jobs[k].input)): k for k in todo}
+    # Largest first, so that no large file starts last and runs alone (sizes break ties by input order).
+    order = sorted(todo, key=lambda k: -_size(jobs[k].input))
+    futures = {client.submit(optimize_file, jobs[k], pure=False, priority=len(order) - rank): k
+               for rank, k in enumerate(order)}
     slots = max(1, sum(client.nthreads().values()))
     pending = len(todo)
     progress(None, _counts(rows, pending, slots))

@@ -134,4 +134,4 @@ def _print_table(rows: list, args) -> None:
 
     summary = args.report or os.path.join(args.out_dir, SUMMARY_NAME)
     counts = ", ".join(f"{n} {status}" for status, n in tally(rows).items() if n)
-    print(f"{len(rows)} files: {counts}; summary: {summary}, {csv_path_for(summary)}", flush=True)
+    print(f"{len(rows)} file{'s' if len(rows) != 1 else ''}: {counts}; summary: {summary}, {csv_path_for(summary)}", flush=True)
