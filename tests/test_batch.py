@@ -176,3 +176,13 @@ def test_a_local_cluster_leaves_the_callers_environment_as_it_was(shared_dataset
     before = dict(os.environ)
     [row] = posegraph.optimize_many([shared_dataset("tinyGrid3D")], tmp_path, workers=1)
     assert row["status"] == "ok" and dict(os.environ) == before
+
+
+def test_a_task_that_fails_on_the_cluster_is_one_failed_row(client, tmp_path):
+    from posegraph.batch.many import _row_of
+
+    [job] = plan_jobs(["a.g2o"], str(tmp_path), [])
+    future = client.submit(lambda: 1 / 0, pure=False)
+    row = _row_of(future, job)
+    assert row["status"] == "failed" and row["file"] == "a.g2o"
+    assert row["reason"] == "the task failed on the cluster (ZeroDivisionError: division by zero)"

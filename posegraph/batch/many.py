@@ -67,6 +67,10 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool) -> list:
     argv = option_argv(options)
     jobs = plan_jobs(paths, out_dir, argv, plot=plot, covariances=covariances)
     check_options(argv, jobs[0].input, jobs[0].output)
+    if plot:  # once here, rather than one failed row per file
+        from posegraph.plot import require_matplotlib
+
+        require_matplotlib()
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise BatchError(f"the output folder {out_dir} is a file")
     os.makedirs(out_dir, exist_ok=True)

@@ -7,10 +7,13 @@ import csv
 import json
 import os
 import shutil
+import signal
+import subprocess
+import sys
 
 import pytest
 
-from tests.cli.conftest import assert_one_error_line, run_cli
+from tests.cli.conftest import CLI, assert_one_error_line, run_cli
 from tests.conftest import SHARED_DATASETS
 from tests.optional import import_or_skip
 
@@ -218,3 +221,47 @@ def test_without_distributed_batch_says_how_to_install_it(inputs, tmp_path):
     assert proc.stderr.strip().splitlines() == [
         'posegraph: error: posegraph batch needs Dask\'s distributed scheduler (dask.distributed), which is not '
         'installed: pip install "posegraph[batch]"']
+
+
+def test_plot_and_covariances_are_each_files_and_count_for_completeness(inputs, tmp_path):
+    import numpy as np
+
+    import_or_skip("matplotlib", "--plot")
+    out = tmp_path / "out"
+    run = run_cli("batch", inputs[0], "-o", out, "--workers", 1, "--plot", "--covariances")
+    assert run.returncode == 0, run.stderr
+    stem = inputs[0].stem
+    direct = run_cli("optimize", inputs[0], "-o", tmp_path / "d.g2o", "--covariances", tmp_path / "d.npz", "-q")
+    assert direct.returncode == 0, direct.stderr
+    with np.load(out / f"{stem}.cov.npz") as batch, np.load(tmp_path / "d.npz") as alone:
+        assert np.array_equal(batch["ids"], alone["ids"]) and np.array_equal(batch["covariances"], alone["covariances"])
+    assert (out / f"{stem}.png").stat().st_size > 10_000
+    (out / f"{stem}.png").unlink()  # an output missing: the file is done again
+    again = run_cli("batch", inputs[0], "-o", out, "--workers", 1, "--plot", "--covariances")
+    assert json.loads((out / "summary.json").read_text())["files"][0]["status"] == "ok", again.stderr
+    assert (out / f"{stem}.png").is_file()
+
+
+def test_ctrl_c_stops_the_batch_keeping_the_files_finished(inputs, tmp_path):
+    """SIGINT to the whole process group, as Ctrl-C in a terminal: exit 130, one line, no traceback
+    from this process or its workers; the files finished are complete and a re-run skips them."""
+    out = tmp_path / "out"
+    many = [inputs[0]] + [tmp_path / f"copy{k}.g2o" for k in range(12)]
+    biggest = max(inputs[:-1], key=lambda p: p.stat().st_size)  # parking-garage: 12 copies take seconds
+    for path in many[1:]:
+        shutil.copyfile(biggest, path)
+    proc = subprocess.Popen([sys.executable, str(CLI), "batch", *many, "-o", out, "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert proc.stderr.readline().startswith("[1/13] ok ")  # a file has finished
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and stderr.strip().splitlines()[-1].startswith("posegraph: interrupted; ")
+    finished = [p for p in many if (out / f"{p.stem}.log").exists()]
+    assert finished and all((out / f"{p.stem}.g2o").exists() for p in finished)
+    rerun = run_cli("batch", *finished, "-o", out, "--workers", 1)
+    assert rerun.returncode == 0 and {r["status"] for r in json.loads((out / "summary.json").read_text())["files"]} == {"skipped"}
