@@ -40,10 +40,10 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
     from posegraph.batch.files import outputs_complete
     from posegraph.batch.rows import skipped_row, write_summary
 
-    jobs = _plan(paths, out_dir, options, plot, covariances)
+    report = os.path.join(out_dir, SUMMARY_NAME) if report is None else os.fspath(report)
+    jobs = _plan(paths, out_dir, options, plot, covariances, report)
     rows = [None if force or not outputs_complete(job) else skipped_row(job) for job in jobs]
     todo = [k for k, row in enumerate(rows) if row is None]
-    report = os.path.join(out_dir, SUMMARY_NAME) if report is None else os.fspath(report)
     progress = progress or (lambda row, counts: None)
     if todo:
         with _client(client, scheduler, workers, len(todo)) as running:
@@ -54,10 +54,13 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
     return rows
 
 
-def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool) -> list:
-    """The jobs, after every check that can fail before work: options, names, OUT_DIR (made if absent)."""
+def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: str) -> list:
+    """The jobs, after every check that can fail before work: options, names, OUT_DIR (made if
+    absent), the summary's path."""
     from posegraph.batch.files import plan_jobs
     from posegraph.batch.options import BatchError, check_options, option_argv
+    from posegraph.batch.rows import csv_path_for
+    from posegraph.cli.common import check_output
 
     paths = [os.fspath(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
     if not paths:
@@ -74,6 +77,11 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool) -> list:
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise BatchError(f"the output folder {out_dir} is a file")
     os.makedirs(out_dir, exist_ok=True)
+    taken = {os.path.realpath(p) for job in jobs for p in (job.input, *job.outputs)}
+    for summary in (report, csv_path_for(report)):
+        check_output(summary, what="summary")
+        if os.path.realpath(summary) in taken:
+            raise BatchError(f"the summary {summary} would be an input or a file's output: choose another --report")
     return jobs
 
 

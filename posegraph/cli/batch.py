@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from posegraph.cli.common import (
-    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, PROG, UsageError, check_output, positive_int, warn,
+    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, PROG, UsageError, positive_int, warn,
 )
 
 NAME = "batch"
@@ -54,8 +54,6 @@ def run(args) -> int:
     from posegraph.batch import BatchError, optimize_many
     from posegraph.batch.options import file_option_defaults
 
-    if args.report:
-        check_output(args.report, what="summary")
     options = {name: getattr(args, name) for name in file_option_defaults()}
     progress = ProgressLine(quiet=args.quiet)
     try:

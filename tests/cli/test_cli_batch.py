@@ -205,6 +205,10 @@ def test_two_inputs_with_one_name_or_standard_input_are_refused(inputs, tmp_path
                           "would write the same outputs")
     assert_one_error_line(run_cli("batch", "-", "-o", tmp_path / "o"), "standard input")
     assert_one_error_line(run_cli("batch", twin / inputs[0].name, "-o", twin), "would overwrite an input")
+    assert_one_error_line(run_cli("batch", inputs[0], "-o", tmp_path / "o", "--report", tmp_path / "o" / f"{inputs[0].stem}.log"),
+                          "the summary", "would be an input or a file's output")
+    assert_one_error_line(run_cli("batch", inputs[0], "-o", tmp_path / "o", "--report", tmp_path / "none" / "s.json"),
+                          "folder", "does not exist")
 
 
 def test_without_distributed_batch_says_how_to_install_it(inputs, tmp_path):
