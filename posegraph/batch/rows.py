@@ -10,8 +10,9 @@ ROW_FIELDS = ("file", "vertices", "edges", "final_cost", "chi2_per_dof", "iterat
               "status", "reason", "output", "report", "log")
 """The summary's columns. ``status``: ``ok``, ``not converged`` (the iteration cap or another solver
 stop came first; the result is written), ``failed`` (``reason``: ``optimize``'s one-line error or
-warning), ``skipped`` (complete outputs of an earlier run kept). ``seconds``: the file's wall time
-on its worker; ``outliers``: edges judged outliers (``--robust`` only, else empty)."""
+warning), ``skipped`` (complete outputs of an earlier run kept; ``seconds`` then from its report).
+``seconds``: the file's wall time on its worker, from the command line to its exit status (the first
+file of each worker also pays the imports of the modules its options use); ``outliers``: edges judged outliers (``--robust`` only, else empty)."""
 
 STATUSES = ("ok", "not converged", "failed", "skipped")
 

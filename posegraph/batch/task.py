@@ -30,7 +30,10 @@ def optimize_file(job: FileJob) -> dict:
     from posegraph.atomic import write_text_atomic
     from posegraph.batch.rows import file_row
 
+    from posegraph.cli.startup import import_solver_modules
+
     with _ONE_AT_A_TIME:
+        import_solver_modules()  # once per worker: a file's seconds are its own work, as in its report
         start = time.perf_counter()
         printed, status = _run_captured(job.argv)
         seconds = time.perf_counter() - start
