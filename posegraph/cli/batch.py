@@ -90,10 +90,10 @@ class ProgressLine:
     def __call__(self, row, counts: dict) -> None:
         if self.quiet and (row is None or row["status"] == "ok"):
             return
-        text = (f"{counts['done']} done, {counts['failed']} failed, {counts['running']} running, "
-                f"{counts['waiting']} waiting, of {counts['total']}")
+        finished = counts["done"] + counts["failed"]
+        text = (f"{_bar(finished, counts['total'])} {counts['done']} done, {counts['failed']} failed, "
+                f"{counts['running']} running, {counts['waiting']} waiting, of {counts['total']}")
         if row is not None and (not self.terminal or row["status"] != "ok"):
-            finished = counts["done"] + counts["failed"]
             reason = f": {row['reason']}" if row["reason"] else ""
             self._clear()
             print(f"[{finished}/{counts['total']}] {row['status']} {row['file']}{reason}", file=sys.stderr, flush=True)
@@ -111,6 +111,12 @@ class ProgressLine:
             sys.stderr.write("\n")
             sys.stderr.flush()
             self.drawn = False
+
+
+def _bar(finished: int, total: int, width: int = 24) -> str:
+    """``[#########...............]``: the share of files finished."""
+    filled = width * finished // max(total, 1)
+    return "[" + "#" * filled + "." * (width - filled) + "]"
 
 
 def _print_table(rows: list, args) -> None:

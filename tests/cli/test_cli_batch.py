@@ -111,6 +111,11 @@ def test_a_malformed_file_is_one_failed_row_with_optimizes_message(first_run, in
     log = (out / "malformed.log").read_text().splitlines()
     assert log[0].startswith("$ posegraph optimize ") and log[-1] == "exit status 2"
     assert "malformed.g2o" in run.stderr and "1 of" in run.stderr
+    # stderr is no terminal: one progress line per file as it ends, in the order they end
+    progress = [line for line in run.stderr_lines if line.startswith("[")]
+    assert [line.split("]")[0] for line in progress] == [f"[{k}/{len(inputs)}" for k in range(1, len(inputs) + 1)]
+    assert f"] failed {inputs[-1]}: {message}" in run.stderr
+    assert sum("] ok " in line for line in progress) == len(inputs) - 1
 
 
 def test_each_log_holds_the_command_and_what_optimize_printed(first_run, inputs):
