@@ -165,6 +165,9 @@ def test_optimize_many_with_a_client(client, shared_dataset, tmp_path):
     assert [row["status"] for row in again] == ["skipped", "skipped"]
     assert [row["final_cost"] for row in again] == [row["final_cost"] for row in rows[:2]]
     assert client.status == "running"  # a client given is not closed
+    with pytest.raises(BatchError, match="at most one of client, scheduler and workers"):
+        posegraph.optimize_many(paths[:1], tmp_path / "other", client=client, workers=2)
+    assert not (tmp_path / "other").exists()
 
 
 def test_a_local_cluster_leaves_the_callers_environment_as_it_was(shared_dataset, tmp_path, monkeypatch):

@@ -34,12 +34,17 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
     Returns the rows in the order of ``paths`` (:data:`posegraph.batch.rows.ROW_FIELDS`): a file that
     fails is a row with status ``failed`` and ``optimize``'s one-line reason, never an exception.
     Raises :class:`~posegraph.batch.options.BatchError` (nothing run) for options ``optimize``
-    refuses, inputs that would share or overwrite outputs, an unreachable scheduler;
+    refuses, inputs that would share or overwrite outputs, an unreachable scheduler, more than one
+    of ``client``, ``scheduler``, ``workers``;
     :class:`TypeError` for an unknown option; :class:`ImportError` without ``dask.distributed``.
     """
     from posegraph.batch.files import outputs_complete
     from posegraph.batch.rows import skipped_row, write_summary
 
+    if sum(x is not None for x in (client, scheduler, workers)) > 1:
+        from posegraph.batch.options import BatchError
+
+        raise BatchError("give at most one of client, scheduler and workers")
     report = os.path.join(out_dir, SUMMARY_NAME) if report is None else os.fspath(report)
     jobs = _plan(paths, out_dir, options, plot, covariances, report)
     rows = [None if force or not outputs_complete(job) else skipped_row(job) for job in jobs]
@@ -101,7 +106,7 @@ def _run_jobs(client, jobs: list, todo: list, rows: list, progress) -> None:
     order = sorted(todo, key=lambda k: -_size(jobs[k].input))
     futures = {client.submit(optimize_file, jobs[k], pure=False, priority=len(order) - rank): k
                for rank, k in enumerate(order)}
-    slots = max(1, sum(client.nthreads().values()))
+    slots = max(1, len(client.nthreads()))  # a worker process runs one file at a time (posegraph.batch.task)
     pending = len(todo)
     progress(None, _counts(rows, pending, slots))
     try:
