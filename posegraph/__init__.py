@@ -40,6 +40,7 @@ _LAZY = {
     "InputError": "posegraph.errors",
     "marginal_covariances": "posegraph.covariance",
     "joint_covariance": "posegraph.covariance",
+    "optimize_many": "posegraph.batch.many",
 }
 
 __all__ = sorted(_LAZY) + ["lie"]

@@ -11,7 +11,8 @@ Modules: :mod:`~posegraph.cli.program` (``main``: exit statuses and one-line err
 :mod:`~posegraph.cli.common` (messages, progress, output checks, reading, option types),
 :mod:`~posegraph.cli.solving` (solver options shared by ``optimize`` and ``compare``),
 :mod:`~posegraph.cli.startup` (process tuning for fast runs), and one module per subcommand:
-``optimize``, ``compare``, ``verify_jacobians``, ``info``, ``eval``, ``plot``, ``export``.
+``optimize``, ``batch`` (many files on Dask: :mod:`posegraph.batch`), ``compare``, ``verify_jacobians``,
+``info``, ``eval``, ``plot``, ``export``.
 
 Exit status: 0 success (optimiser converged; compare agreed; every Jacobian check within
 tolerance); 1 the run finished but did not meet that bar (iteration cap hit or figure not drawn —

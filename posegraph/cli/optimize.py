@@ -43,14 +43,7 @@ def add_arguments(p) -> None:
     p.add_argument("input", metavar="IN.g2o", help="input pose graph (- for standard input)")
     p.add_argument("-o", "--output", metavar="OUT.g2o", required=True,
                    help="output pose graph (- for standard output; the summary then goes to stderr)")
-    repair_option(p)
-    solver_options(p)
-    robust_options(p)
-    p.add_argument("--fix", metavar="ID", nargs="+", action="extend", type=non_negative_int, default=[],
-                   help="hold these vertex ids at their start, besides the file's FIX lines (which then anchor "
-                        "their component instead of its smallest id); OUT keeps the file's FIX lines only")
-    p.add_argument("--stats", action="store_true",
-                   help="print count, chi2 and chi2 per edge by edge kind (odometry, loop closure) at the result")
+    file_options(p)
     p.add_argument("--report", metavar="REPORT.json", help="write costs, chi2, iterations, timings and "
                    "per-iteration records as JSON (- for standard output)")
     p.add_argument("--plot", metavar="FIG.png", help="draw the input and optimised trajectories (needs matplotlib); "
@@ -60,8 +53,22 @@ def add_arguments(p) -> None:
                         "(n, d, d), d = 6 for SE(3) in gtsam's tangent order [rotation; translation] and body frame, "
                         "3 for SE(2) [x, y, θ]); FIX vertices and each component's anchor are held, so theirs are "
                         "zero and the others are relative to them; written with OUT, or neither")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+
+
+def file_options(p) -> None:
+    """The options that say how one file is optimised, not where its outputs go: repair, solver,
+    robust, ``--fix``, ``--stats``, ``--quiet``. ``posegraph batch`` takes them too and passes them
+    to each file (:mod:`posegraph.batch.options`)."""
+    repair_option(p)
+    solver_options(p)
+    robust_options(p)
+    p.add_argument("--fix", metavar="ID", nargs="+", action="extend", type=non_negative_int, default=[],
+                   help="hold these vertex ids at their start, besides the file's FIX lines (which then anchor "
+                        "their component instead of its smallest id); OUT keeps the file's FIX lines only")
+    p.add_argument("--stats", action="store_true",
+                   help="print count, chi2 and chi2 per edge by edge kind (odometry, loop closure) at the result")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
 
 
 def run(args) -> int:

@@ -151,7 +151,7 @@ def test_freed_memory_is_kept_for_reuse_unless_the_user_tunes_malloc():
         assert run_python(code, **{variable: "131072" if variable != "GLIBC_TUNABLES" else "glibc.malloc.top_pad=131072"}).stdout.split() == ["False"]
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["optimize", "--help"], ["plot", "--help"], ["export", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["optimize", "--help"], ["batch", "--help"], ["plot", "--help"], ["export", "--help"]])
 def test_help_loads_no_numpy(argv):
     """Help texts come from the parser alone: numpy (and with it BLAS, before its thread count is set
     for a solve) is not loaded by any subcommand module at import time."""
