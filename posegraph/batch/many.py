@@ -51,8 +51,8 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
     todo = [k for k, row in enumerate(rows) if row is None]
     progress = progress or (lambda row, counts: None)
     if todo:
-        with _client(client, scheduler, workers, len(todo)) as running:
-            _run_jobs(running, jobs, todo, rows, progress)
+        with _interrupt_deferred() as interrupted, _client(client, scheduler, workers, len(todo)) as running:
+            _run_jobs(running, jobs, todo, rows, progress, interrupted)
     else:
         progress(None, _counts(rows, 0, 0))
     write_summary(rows, report)
@@ -96,8 +96,47 @@ def _client(client, scheduler, workers, files: int):
     return batch_client(client=client, scheduler=scheduler, workers=min(workers or default_workers(), files))
 
 
-def _run_jobs(client, jobs: list, todo: list, rows: list, progress) -> None:
-    """Submit ``jobs[k]`` for each ``k`` in ``todo`` (largest input first), fill ``rows[k]`` as each ends."""
+POLL_SECONDS = 0.05
+"""How often the wait for the next finished file looks for it, and for a Ctrl-C (:func:`_interrupt_deferred`)."""
+
+
+class _interrupt_deferred:
+    """Ctrl-C while a cluster runs sets ``self.is_set`` instead of raising anywhere inside Dask (whose
+    event loop logs tracebacks, or drops the KeyboardInterrupt, when it lands in its callbacks);
+    :func:`_run_jobs` looks at it between waits and raises KeyboardInterrupt there, and leaving the
+    block raises it if it came later (while the cluster closed). Outside the main thread, where no
+    signal handler can be set, Ctrl-C raises where it lands, as by default."""
+
+    def __init__(self):
+        self.is_set = False
+        self._previous = None
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous = signal.signal(signal.SIGINT, self._note)
+        return self
+
+    def _note(self, signum, frame) -> None:
+        self.is_set = True
+
+    def __exit__(self, kind, value, traceback):
+        import signal
+
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+        if self.is_set and kind is None:
+            raise KeyboardInterrupt
+        return False
+
+
+def _run_jobs(client, jobs: list, todo: list, rows: list, progress, interrupted=None) -> None:
+    """Submit ``jobs[k]`` for each ``k`` in ``todo`` (largest input first), fill ``rows[k]`` as each
+    ends; raises KeyboardInterrupt between files once ``interrupted.is_set``."""
+    import time
+
     from distributed import as_completed
 
     from posegraph.batch.task import optimize_file
@@ -107,14 +146,19 @@ def _run_jobs(client, jobs: list, todo: list, rows: list, progress) -> None:
     futures = {client.submit(optimize_file, jobs[k], pure=False, priority=len(order) - rank): k
                for rank, k in enumerate(order)}
     slots = max(1, len(client.nthreads()))  # a worker process runs one file at a time (posegraph.batch.task)
-    pending = len(todo)
-    progress(None, _counts(rows, pending, slots))
+    progress(None, _counts(rows, len(futures), slots))
+    finished = as_completed(list(futures), loop=client.loop)
     try:
-        for future in as_completed(list(futures), loop=client.loop):
-            k = futures.pop(future)
-            rows[k] = _row_of(future, jobs[k])
-            pending -= 1
-            progress(rows[k], _counts(rows, pending, slots))
+        while futures:
+            if interrupted is not None and interrupted.is_set:
+                raise KeyboardInterrupt
+            if not finished.has_ready():
+                time.sleep(POLL_SECONDS)
+                continue
+            for future in finished.next_batch(block=False):
+                k = futures.pop(future)
+                rows[k] = _row_of(future, jobs[k])
+                progress(rows[k], _counts(rows, len(futures), slots))
     finally:
         for future in futures:  # only on an error or Ctrl-C: the files not finished are not left running
             future.cancel()

@@ -14,6 +14,15 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 CLI = PROJECT_ROOT / "cli.py"
 
 
+def default_sigint() -> None:
+    """``preexec_fn`` for a child that a test interrupts: Ctrl-C's default handling, which a child
+    started from a background job (SIGINT ignored, as ``nohup cmd &`` leaves it) would otherwise
+    inherit as ignored, so that Python never raises KeyboardInterrupt in it."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @dataclass
 class Run:
     args: list

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from tests.cli.conftest import CLI, assert_one_error_line, run_cli
+from tests.cli.conftest import CLI, assert_one_error_line, default_sigint, run_cli
 from tests.conftest import SHARED_DATASETS
 from tests.optional import import_or_skip
 
@@ -260,7 +260,8 @@ def test_ctrl_c_stops_the_batch_keeping_the_files_finished(inputs, tmp_path):
     for path in many[1:]:
         shutil.copyfile(biggest, path)
     proc = subprocess.Popen([sys.executable, str(CLI), "batch", *many, "-o", out, "--workers", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=default_sigint)
     try:
         assert proc.stderr.readline().startswith("[1/13] ok ")  # a file has finished
         os.killpg(proc.pid, signal.SIGINT)

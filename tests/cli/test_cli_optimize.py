@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.cli.conftest import CLI, assert_one_error_line, run_cli
+from tests.cli.conftest import CLI, assert_one_error_line, default_sigint, run_cli
 
 TINY_GRID_COST = 9.313909433544  # gtsam 4.3 LM on tinyGrid3D (docs/architecture.md, guide)
 
@@ -192,7 +192,7 @@ def test_ctrl_c_exits_130_and_leaves_no_output(tmp_path, shared_dataset):
     proc = subprocess.Popen(
         [sys.executable, str(CLI), "optimize", str(source), "-o", str(out), "--report", str(report),
          "--init", "file", "--method", "gn", "--relative-tolerance", "0", "--absolute-tolerance", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint,
     )
     try:
         # Interrupt once the solver is iterating (the first progress line), as a user would.
