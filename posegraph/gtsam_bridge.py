@@ -132,6 +132,35 @@ def graph_to_gtsam(graph, *, diagonal: bool = False):
         noises = [gtsam.noiseModel.Gaussian.Information(info) for info in graph.information]
     for i, j, Z, noise in zip(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements, noises):
         factors.add(between(ids[i], ids[j], _gtsam_pose(gtsam, Z), noise))
+    if not diagonal:
+        factors.push_back(prior_factors(graph))
+    return factors
+
+
+def prior_factors(graph):
+    """The graph's priors (:mod:`posegraph.priors`) as gtsam factors, keys = vertex ids.
+
+    Pose priors: ``PriorFactorPose3`` / ``PriorFactorPose2``; one with an offset ``O`` as the prior
+    on ``X`` measuring ``Z O⁻¹`` with information ``Ad(O⁻¹)ᵀ Ω Ad(O⁻¹)``, the same cost exactly
+    (``Log(Z⁻¹ X O) = Ad(O⁻¹) Log((Z O⁻¹)⁻¹ X)``). Position priors: ``GPSFactor`` (3D) and
+    ``PoseTranslationPrior2D`` (2D), whose error is ``t(X) − z``. Empty without priors.
+    """
+    gtsam = require_gtsam()
+    factors = gtsam.NonlinearFactorGraph()
+    priors = graph.priors
+    if priors is None:
+        return factors
+    group, planar = graph.group, _is_planar(graph)
+    inverse_offsets = group.inverse(priors.pose_offsets)
+    adjoint = group.adjoint(inverse_offsets)
+    measurements = priors.pose_measurements @ inverse_offsets
+    information = np.swapaxes(adjoint, -1, -2) @ priors.pose_information @ adjoint
+    pose_prior = gtsam.PriorFactorPose2 if planar else gtsam.PriorFactorPose3
+    for k, Z, omega in zip(priors.pose_vertex.tolist(), measurements, information):
+        factors.add(pose_prior(int(graph.ids[k]), _gtsam_pose(gtsam, Z), gtsam.noiseModel.Gaussian.Information(omega)))
+    position_prior = gtsam.PoseTranslationPrior2D if planar else gtsam.GPSFactor
+    for k, z, omega in zip(priors.position_vertex.tolist(), priors.position_measurements, priors.position_information):
+        factors.add(position_prior(int(graph.ids[k]), np.array(z), gtsam.noiseModel.Gaussian.Information(omega)))
     return factors
 
 
@@ -277,6 +306,7 @@ def _read(gtsam, source, graph):
         graph = read_g2o(path)  # also tells the dimension gtsam's reader must be given
     t0 = time.perf_counter()
     factors, file_values = gtsam.readG2o(path, not _is_planar(graph))
+    factors.push_back(prior_factors(graph))  # gtsam's reader skips g2o's prior lines
     return graph, factors, file_values, time.perf_counter() - t0
 
 

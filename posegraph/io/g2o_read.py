@@ -25,6 +25,7 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
+from posegraph.io.g2o_priors import PRIOR_TAGS, read_priors
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.text_input import read_text
 from posegraph.lie import so2, so3
@@ -131,7 +132,7 @@ def read_g2o(
 def _parse(text: str, path: str, source: str | None, require_edges: bool, repair_information: bool) -> PoseGraph:
     groups, first_line = group_lines(text)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
-    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS}
+    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS | PRIOR_TAGS}
     # Stage 1: the format of each line.
     space_dim = space_dimension(groups, first_line, path)
     table = records_of(space_dim)
@@ -166,6 +167,9 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         # Every edge is an EDGE_SE3:QUAT (EDGE_SE2) line and none was repaired (a repair returns a
         # copy): the lines state the edges exactly, and the writer copies them (EdgeSource).
         graph = replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines[edge_tag].rests))
+    priors, prior_notes = read_priors(groups, space_dim, graph.ids, path, repair_information)  # unary edges
+    if priors is not None:
+        graph, notes = replace(graph, priors=priors), notes + prior_notes
     if graph.num_edges:
         notes += components_note(graph, path)
     for note in notes:
