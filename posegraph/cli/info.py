@@ -85,6 +85,8 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
         ("edges", f"{info['num_edges']}: {info['num_odometry_edges']} odometry (consecutive ids), "
                   f"{info['num_loop_closures']} loop closures"),
         ("components", str(info["num_components"])),
+        *([("priors", f"{info['priors']['pose']} pose, {info['priors']['position']} position (unary edges; "
+                      "they hold the gauge of the components they reach)")] if sum(info["priors"].values()) else []),
         ("degree", f"min {info['degree_min']}, max {info['degree_max']}, mean {info['degree_mean']:.3f}, "
                    f"median {info['degree_median']:g}"),
     ]

@@ -269,14 +269,18 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
 
 def _dof_text(graph, chi2: dict) -> str:
     d = graph.information.shape[-1]
-    edges = sum(kind["count"] for kind in chi2["by_kind"].values())  # with --robust: the inliers
-    free = (d * edges - chi2["dof"]) // d
-    return f"{d}·{edges} edges − {d}·{free} free poses = {chi2['dof']}"
+    edges = sum(kind["count"] for name, kind in chi2["by_kind"].items() if name != "prior")  # --robust: inliers
+    priors = graph.priors
+    prior_dims = d * priors.num_pose + graph.group.space_dim * priors.num_position if priors is not None else 0
+    free = (d * edges + prior_dims - chi2["dof"]) // d
+    prior_text = f" + {prior_dims} of {len(priors)} priors" if priors is not None else ""
+    return f"{d}·{edges} edges{prior_text} − {d}·{free} free poses = {chi2['dof']}"
 
 
 def _stats_table(chi2: dict) -> list[str]:
     """``--stats``: count, χ² and χ²/edge per edge kind at the result (g2o's ``-stats``, by kind)."""
     rows = [("odometry", chi2["by_kind"]["odometry"]), ("loop closure", chi2["by_kind"]["loop_closure"])]
+    rows += [("prior", chi2["by_kind"]["prior"])] if "prior" in chi2["by_kind"] else []
     count = sum(r["count"] for _, r in rows)
     rows.append(("all", {"count": count, "chi2": chi2["chi2"],
                          "chi2_per_edge": chi2["chi2"] / count if count else float("nan")}))

@@ -213,3 +213,18 @@ def test_robust_loss_downweights_a_wrong_prior():
     assert evaluation.prior_weights.shape == (len(priors),)
     assert evaluation.prior_weights[2] < 1e-3 < evaluation.prior_weights[[0, 1, 3, 4]].min()
     assert evaluation.cost < Objective(bad).evaluate(start).cost
+
+
+@pytest.mark.parametrize("group", GROUPS)
+def test_marginal_covariances_equal_gtsam_with_priors_only(group):
+    """No vertex held: the priors make H invertible, and the marginals are gtsam's ``Marginals``."""
+    from posegraph.covariance import marginal_covariances
+    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+
+    rng = np.random.default_rng(10)
+    graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
+    poses = optimize(graph, "chordal").poses
+    ours = marginal_covariances(graph, poses)
+    marginals = gtsam.Marginals(graph_to_gtsam(graph), poses_to_values(graph.ids, poses))
+    for k, key in enumerate(graph.ids.tolist()):
+        np.testing.assert_allclose(ours[k], marginals.marginalCovariance(key), rtol=1e-6, atol=1e-10)
