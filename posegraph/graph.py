@@ -106,6 +106,10 @@ class PoseGraph:
     """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
     priors: Priors | None = field(default=None, repr=False)
     """Unary edges (pose and position priors, :class:`posegraph.priors.Priors`), or None: none."""
+    kept_lines: tuple = field(default=(), repr=False)
+    """Lines of the file that are not vertices or edges of the graph but belong in its output, each
+    ``"TAG rest"``, written back as read: TORO's ``EQUIV`` lines and the vertex and edge lines they
+    merged away (:mod:`posegraph.io.g2o_toro`)."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:

@@ -7,6 +7,7 @@ import os
 import sys
 
 from posegraph.cli.common import (
+    reader_options,
     EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
     check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
     warn,
@@ -132,7 +133,8 @@ def _start(args, status: Status):
     """
     from posegraph.solve.residuals import cost
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     **reader_options(args))
     held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
     if graph.num_vertices > LARGE_GRAPH_POSES:

@@ -71,10 +71,11 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
 
 
 def _prior_lines(graph: PoseGraph) -> list[str]:
-    """The priors' lines after the edges (:mod:`posegraph.io.g2o_priors`), each ending in a newline."""
+    """The priors' lines after the edges (:mod:`posegraph.io.g2o_priors`), then ``graph.kept_lines``
+    (TORO's ``EQUIV`` merges, as read), each ending in a newline."""
     from posegraph.io.g2o_priors import format_priors
 
-    return [line + "\n" for line in format_priors(graph)]
+    return [line + "\n" for line in format_priors(graph) + list(graph.kept_lines)]
 
 
 def _pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:
