@@ -272,11 +272,14 @@ def repair_option(p: argparse.ArgumentParser) -> None:
                    help="the order of the 6 information entries of TORO's EDGE2 lines: auto (default) tells it per "
                         "file (the order in which every line gives a positive semi-definite matrix; a file where "
                         "both do and differ is refused), toro (xx xy yy tt xt yt) or g2o (xx xy xt yy yt tt)")
+    p.add_argument("--poses-only", action="store_true",
+                   help="read a file whose measurements are largely of landmarks (LANDMARK2, EDGE_SE3_TRACKXYZ, "
+                        "EDGE_SE2_XY, BR...), which is refused otherwise, skipping them: the poses alone are optimised")
 
 
 def reader_options(args) -> dict:
     """The reader options of :func:`repair_option`'s arguments but ``--repair-information``, for :func:`read_graph`."""
-    return {"edge2_information": getattr(args, "edge2_information", "auto")}
+    return {"edge2_information": getattr(args, "edge2_information", "auto"), "poses_only": getattr(args, "poses_only", False)}
 
 
 def non_negative_int(text: str) -> int:

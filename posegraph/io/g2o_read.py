@@ -25,6 +25,7 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
+from posegraph.io.g2o_landmarks import check_landmarks
 from posegraph.io.g2o_priors import PRIOR_TAGS, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
@@ -65,7 +66,7 @@ class _Fix(NamedTuple):
 
 def read_g2o(
     path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False,
-    edge2_information: str = "auto",
+    edge2_information: str = "auto", poses_only: bool = False,
 ) -> PoseGraph:
     """Read a 3D or 2D pose graph from a g2o file.
 
@@ -93,6 +94,9 @@ def read_g2o(
     edge2_information:
         The order of TORO's ``EDGE2`` information entries: ``"auto"`` (default) tells it per file
         (:func:`posegraph.io.g2o_toro.edge2_information_order`), ``"toro"`` / ``"g2o"`` name it.
+    poses_only:
+        A file whose measurements are largely of landmarks (:mod:`posegraph.io.g2o_landmarks`) is
+        refused unless this is True; then its landmark lines are skipped like other unread tags.
 
     Returns
     -------
@@ -127,13 +131,13 @@ def read_g2o(
     name = os.fspath(path)
     if name == "-":  # standard input, as g2o's and Unix tools' "-"
         text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
-        return _parse(text, "<stdin>", None, require_edges, repair_information, edge2_information)
+        return _parse(text, "<stdin>", None, require_edges, repair_information, (edge2_information, poses_only))
     text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
-    return _parse(text, name, os.path.abspath(name), require_edges, repair_information, edge2_information)
+    return _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
 
 
 def _parse(
-    text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, edge2_information: str
+    text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
 ) -> PoseGraph:
     groups, first_line = group_lines(text)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
@@ -143,7 +147,9 @@ def _parse(
     table = records_of(space_dim)
     lines = {tag: groups.get(tag, empty) for tag in table}
     records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
+    edge2_information, poses_only = reading
     records = edge2_records_in_g2o_order(records, lines, path, edge2_information)  # TORO's order told apart
+    check_landmarks(groups, set(_tags_of("edge", table)) | PRIOR_TAGS, poses_only, path)
     notes = _skipped_note(skipped, first_line, path)
     # Stage 2: the values.
     vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)
