@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["Priors", "anchored_components", "prior_vertices"]
+__all__ = ["Priors", "anchored_components", "prior_vertices", "prior_poses"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,6 +111,24 @@ class Priors:
             np.zeros(0, np.int64), np.zeros((0, k, k)), np.zeros((0, k, k)), np.zeros((0, d, d)),
             np.zeros(0, np.int64), np.zeros((0, r)), np.zeros((0, r, r)),
         )  # fmt: skip
+
+
+def prior_poses(graph) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertex (a + b,), poses (a + b, k, k))``: the vertex of each prior and the pose the prior gives it.
+
+    A pose prior measuring ``Z ≈ X O`` gives ``X = Z O⁻¹``; a position prior gives its point ``z``
+    as the translation, with the rotation of the vertex's current pose (it says nothing about it).
+    Pose priors first; empty without priors.
+    """
+    priors, group = graph.priors, graph.group
+    if priors is None:
+        k = group.matrix_size
+        return np.zeros(0, np.int64), np.zeros((0, k, k))
+    r = group.space_dim
+    positions = np.array(graph.poses[priors.position_vertex], copy=True)
+    positions[:, :r, r] = priors.position_measurements
+    poses = np.concatenate([priors.pose_measurements @ group.inverse(priors.pose_offsets), positions])
+    return np.concatenate([priors.pose_vertex, priors.position_vertex]), poses
 
 
 def prior_vertices(priors: Priors | None, n: int) -> np.ndarray:
