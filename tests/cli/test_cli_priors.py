@@ -71,3 +71,19 @@ def test_toro_order_option_and_landmark_refusal(tmp_path):
     run = run_cli("optimize", landmarks, "-o", tmp_path / "out2.g2o")
     assert run.returncode == 2 and "--poses-only" in run.stderr and not (tmp_path / "out2.g2o").exists()
     assert run_cli("optimize", landmarks, "-o", tmp_path / "out2.g2o", "--poses-only").returncode == 0
+
+
+def test_robust_gnc_reports_and_drops_a_wrong_prior(tmp_path):
+    from posegraph.io.g2o import write_g2o
+    from tests.robust.test_priors_gnc import graph_with_priors
+
+    graph, _, outliers, priors = graph_with_priors(1)
+    source, output, report = tmp_path / "in.g2o", tmp_path / "out.g2o", tmp_path / "report.json"
+    write_g2o(source, graph)
+    run = run_cli("optimize", source, "-o", output, "--robust", "gnc", "--drop-outliers", "--report", report)
+    assert run.returncode == 0, run.stderr
+    assert f"1 of {len(priors)} priors" in run.stdout and "far above" not in run.stderr
+    data = json.loads(report.read_text())
+    assert data["outlier_priors"] == [2] and sorted(data["outlier_edges"]) == sorted(outliers.tolist())
+    written = read_g2o(output).priors
+    assert written.num_position == len(priors) - 1 and 8 not in written.position_vertex.tolist()  # vertex of prior 2
