@@ -84,6 +84,17 @@ class Record(NamedTuple):
     """3 for the 3D tags (SE(3)), 2 for the planar ones (SE(2)); a file holds tags of one only."""
 
 
+_VERTEX_2D = Record(
+    "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
+    ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
+)
+_EDGE_2D = Record(
+    "edge",
+    np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64), ("info", np.float64, (6,))]),
+    ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle", SYMMETRIC_FROM_UPPER_2D,
+    space_dim=2,
+)
+
 RECORDS = {
     VERTEX_TAG: Record(
         "vertex", np.dtype([("id", np.int64), ("t", np.float64, (3,)), ("q", np.float64, (4,))]),
@@ -107,28 +118,10 @@ RECORDS = {
         ("id_from", "id_to", "x", "y", "z", "roll", "pitch", "yaw") + _INFORMATION_FIELDS, 2, "euler",
         SYMMETRIC_FROM_UPPER,
     ),
-    VERTEX_SE2_TAG: Record(
-        "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
-        ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
-    ),
-    EDGE_SE2_TAG: Record(
-        "edge",
-        np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64),
-                  ("info", np.float64, (6,))]),
-        ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle",
-        SYMMETRIC_FROM_UPPER_2D, space_dim=2,
-    ),
-    VERTEX2_TAG: Record(
-        "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
-        ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
-    ),
-    EDGE2_TAG: Record(
-        "edge",
-        np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64),
-                  ("info", np.float64, (6,))]),
-        ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle",
-        SYMMETRIC_FROM_UPPER_2D, space_dim=2,
-    ),
+    VERTEX_SE2_TAG: _VERTEX_2D,
+    EDGE_SE2_TAG: _EDGE_2D,
+    VERTEX2_TAG: _VERTEX_2D,  # TORO's, the same layout
+    EDGE2_TAG: _EDGE_2D,  # its information converted to g2o's order first (posegraph.io.g2o_toro)
 }
 """The vertex and edge tags read, in the order their checks run (vertices before edges)."""
 
