@@ -113,6 +113,32 @@ def read_priors(groups: dict[str, Lines], space_dim: int, ids: np.ndarray, path:
     return replace(priors, text=(lines, priors.checksum(ids))), notes
 
 
+def gauge_note(graph, path: str) -> list[str]:
+    """A warning for the components whose priors leave a rotation free (:mod:`posegraph.priors`), or none."""
+    from posegraph.graph import connected_components
+    from posegraph.priors import underdetermined_components
+
+    if graph.priors is None or graph.priors.num_position == 0:
+        return []
+    count, labels = connected_components(graph)
+    free = np.flatnonzero(underdetermined_components(graph.priors, labels, count) & ~_has_fixed(graph, labels, count))
+    if free.size == 0:
+        return []
+    lines = graph.priors.position_lines
+    first = int(lines[np.isin(labels[graph.priors.position_vertex], free)].min()) if lines is not None else None
+    where = f"{path}:{first}" if first is not None else path
+    return [f"{where}: the position priors of {free.size} connected component(s) leave a rotation free (one point, or "
+            "points on a line): no vertex is held there, Levenberg-Marquardt's damping fixes that rotation where the "
+            "start has it (Gauss-Newton will find the system singular)"]
+
+
+def _has_fixed(graph, labels: np.ndarray, count: int) -> np.ndarray:
+    """``(count,)`` bool: the components with a ``FIX`` vertex."""
+    out = np.zeros(count, dtype=bool)
+    out[labels[graph.fixed]] = True
+    return out
+
+
 def _parse_tag(lines: Lines, tag: str, path: str, repair: bool) -> tuple[_Parsed, list[str]]:
     """One tag's lines parsed and checked (syntax, finite values, quaternion, information)."""
     spec = PRIOR_RECORDS[tag]

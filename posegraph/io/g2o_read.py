@@ -26,7 +26,7 @@ from posegraph.io.g2o_checks import (
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
 from posegraph.io.g2o_landmarks import check_landmarks
-from posegraph.io.g2o_priors import PRIOR_TAGS, read_priors
+from posegraph.io.g2o_priors import PRIOR_TAGS, gauge_note, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.text_input import read_text
@@ -182,6 +182,7 @@ def _parse(
     priors, prior_notes = read_priors(groups, space_dim, graph.ids, path, repair_information)  # unary edges
     if priors is not None:
         graph, notes = replace(graph, priors=priors), notes + prior_notes
+        notes += gauge_note(graph, path)
     graph, merge_notes = merge_equivalent(graph, groups, tuple(_tags_of("vertex", table)), path)  # TORO's EQUIV
     notes += merge_notes
     if graph.num_edges:

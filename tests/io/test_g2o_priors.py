@@ -108,3 +108,21 @@ def test_bad_prior_lines_are_refused_with_file_and_line(text_file, line, error, 
         read_g2o(path)
     assert caught.value.line == len(text.splitlines()) - 1
     assert reason in str(caught.value) and str(path) in str(caught.value)
+
+
+def test_a_single_position_prior_is_accepted_with_a_warning_that_a_rotation_stays_free(text_file):
+    from posegraph.graph import held_vertices
+    from posegraph.solve.optimizer import optimize
+
+    text = CHAIN + "\nPARAMS_SE3OFFSET 0 0 0 0 0 0 0 1\nEDGE_SE3_XYZ_PRIOR 2 0 4 5 6 1 0 0 1 0 1\n"
+    graph, messages = read_with_warnings(text_file(text))
+    assert len(messages) == 1 and "leave a rotation free" in messages[0] and ":9:" in messages[0]
+    assert not held_vertices(graph).any()
+    result = optimize(graph, "chordal")  # LM's damping copes; the prior is met exactly
+    assert result.converged
+    np.testing.assert_allclose(result.poses[2, :3, 3], [4, 5, 6], atol=1e-6)
+
+
+def test_three_position_priors_not_on_a_line_fix_the_gauge_silently(text_file):
+    _, messages = read_with_warnings(text_file(CHAIN + "\n" + PRIORS_3D + "\nEDGE_SE3_XYZ_PRIOR 1 0 0 9 0 1 0 0 1 0 1\n"))
+    assert messages == []
