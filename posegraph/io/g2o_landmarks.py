@@ -9,7 +9,8 @@ landmarks its poses form a chain, which "converges" at once to cost 0. So a file
 measurement lines are at least :data:`LANDMARK_SHARE` of its measurement lines (pose edges, priors
 and landmark measurements) is refused at its first landmark line, unless the caller asks to
 optimise the poses alone (``poses_only=True``, ``--poses-only``): then they are skipped with the
-usual warning.
+usual warning. Reading a trajectory (``require_edges=False``: ``info``, ``eval``, ``plot``,
+``export``) only warns, with the same text.
 """
 
 from __future__ import annotations
@@ -28,19 +29,19 @@ LANDMARK_SHARE = 0.25
 (victoriaPark_reduced_1k: 606 of 1,605, 38 %; cityTrees_reduced_1k: 406 of 1,405, 29 %)."""
 
 
-def check_landmarks(groups: dict, measurement_tags, poses_only: bool, path: str) -> None:
-    """Raise :class:`GraphError` for a landmark graph (module docstring); ``measurement_tags``: the
-    tags of the pose edges and priors that posegraph reads."""
+def landmark_refusal(groups: dict, measurement_tags, poses_only: bool, path: str) -> GraphError | None:
+    """The :class:`GraphError` for a landmark graph (module docstring), or None; ``measurement_tags``:
+    the tags of the pose edges and priors that posegraph reads."""
     landmark = {tag: len(groups[tag].rests) for tag in LANDMARK_MEASUREMENT_TAGS & groups.keys()}
     if poses_only or not landmark:
-        return
+        return None
     count = sum(landmark.values())
     total = count + sum(len(groups[tag].rests) for tag in set(measurement_tags) & groups.keys())
     if count < LANDMARK_SHARE * total or count == total:  # (no pose measurement at all: the reader says so)
-        return
+        return None
     first_tag = min(landmark, key=lambda tag: groups[tag].numbers[0])
     listing = ", ".join(f"{tag} ×{n}" for tag, n in sorted(landmark.items()))
-    raise GraphError(
+    return GraphError(
         f"{count} of the file's {total} measurement lines observe landmarks ({listing}), which posegraph does not "
         "read: without them the poses answer another problem; pass --poses-only (read_g2o(..., poses_only=True)) "
         "to optimise the poses alone",

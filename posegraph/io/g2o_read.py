@@ -25,7 +25,7 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
-from posegraph.io.g2o_landmarks import check_landmarks
+from posegraph.io.g2o_landmarks import landmark_refusal
 from posegraph.io.g2o_priors import PRIOR_TAGS, gauge_note, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
@@ -149,8 +149,10 @@ def _parse(
     records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
     edge2_information, poses_only = reading
     records = edge2_records_in_g2o_order(records, lines, path, edge2_information)  # TORO's order told apart
-    check_landmarks(groups, set(_tags_of("edge", table)) | PRIOR_TAGS, poses_only, path)
-    notes = _skipped_note(skipped, first_line, path)
+    refusal = landmark_refusal(groups, set(_tags_of("edge", table)) | PRIOR_TAGS, poses_only, path)
+    if refusal is not None and require_edges:
+        raise refusal
+    notes = _skipped_note(skipped, first_line, path) + ([str(refusal)] if refusal is not None else [])
     # Stage 2: the values.
     vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)
     notes += value_notes

@@ -39,3 +39,9 @@ def test_a_few_landmark_lines_are_skipped_with_a_warning(text_file):
 def test_gtsam_landmark_files_are_refused(gtsam_example_file, name):
     with pytest.raises(GraphError, match="--poses-only"):
         read_g2o(gtsam_example_file(name))
+
+
+def test_reading_a_landmark_graph_as_a_trajectory_warns_instead(text_file):
+    """info, eval, plot and export read poses (require_edges=False): the same text, as a warning."""
+    graph, messages = read_with_warnings(text_file(with_landmarks(2)), require_edges=False)
+    assert graph.num_vertices == 3 and any("observe landmarks" in m and "--poses-only" in m for m in messages)
