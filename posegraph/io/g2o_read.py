@@ -26,7 +26,7 @@ from posegraph.io.g2o_checks import (
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
 from posegraph.io.g2o_landmarks import landmark_refusal
-from posegraph.io.g2o_priors import PRIOR_TAGS, gauge_note, read_priors
+from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.text_input import read_text
@@ -141,7 +141,8 @@ def _parse(
 ) -> PoseGraph:
     groups, first_line = group_lines(text)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
-    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS | PRIOR_TAGS | {EQUIV_TAG}}
+    read_here = READ_TAGS | {EQUIV_TAG} | (PRIOR_TAGS if PRIOR_RECORDS.keys() & groups.keys() else frozenset())
+    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in read_here}  # (offsets: for priors)
     # Stage 1: the format of each line.
     space_dim = space_dimension(groups, first_line, path)
     table = records_of(space_dim)

@@ -126,3 +126,8 @@ def test_a_single_position_prior_is_accepted_with_a_warning_that_a_rotation_stay
 def test_three_position_priors_not_on_a_line_fix_the_gauge_silently(text_file):
     _, messages = read_with_warnings(text_file(CHAIN + "\n" + PRIORS_3D + "\nEDGE_SE3_XYZ_PRIOR 1 0 0 9 0 1 0 0 1 0 1\n"))
     assert messages == []
+
+
+def test_offsets_without_priors_are_skipped_with_the_other_unread_tags(text_file):
+    graph, messages = read_with_warnings(text_file(CHAIN + "\nPARAMS_SE3OFFSET 0 0 0 0 0 0 0 1\n"))
+    assert graph.priors is None and len(messages) == 1 and "PARAMS_SE3OFFSET ×1" in messages[0]
