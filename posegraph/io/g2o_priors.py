@@ -49,21 +49,27 @@ class PriorRecord(NamedTuple):
     """Indices into the upper-triangular entries giving the tangent-order matrix, row-major."""
 
 
-def _record(ids: int, translation: int, rotation: str | None, size: int, space_dim: int) -> Record:
-    rotation_field = {"quaternion": [("q", np.float64, (4,))], "angle": [("theta", np.float64)], None: []}[rotation]
-    id_names = ("id", "param_id")[:ids]
-    dtype = np.dtype([("ids", np.int64, (ids,)), ("t", np.float64, (translation,))] + rotation_field
+_ROTATION_FIELDS = {"quaternion": ([("q", np.float64, (4,))], ("qx", "qy", "qz", "qw")),
+                    "angle": ([("theta", np.float64)], ("theta",)), None: ([], ())}
+"""Per rotation kind of a prior line: its dtype fields and their names (a position prior has none)."""
+
+
+def _prior_record(ids: int, translation: int, rotation: str | None, size: int, space_dim: int) -> Record:
+    """The layout of a prior line: ``ids`` integers (vertex, and in 3D the parameter id), the measured
+    ``translation`` entries, the rotation (``"quaternion"``, ``"angle"`` or None), then the
+    ``size·(size+1)/2`` upper-triangular information entries."""
+    rotation_dtype, rotation_names = _ROTATION_FIELDS[rotation]
+    dtype = np.dtype([("ids", np.int64, (ids,)), ("t", np.float64, (translation,))] + rotation_dtype
                      + [("info", np.float64, (size * (size + 1) // 2,))])
-    names = id_names + ("x", "y", "z")[:translation] + {"quaternion": ("qx", "qy", "qz", "qw"), "angle": ("theta",),
-                                                          None: ()}[rotation]
-    return Record("edge", dtype, names + _information_fields(size), ids, rotation or "none", None, space_dim)
+    names = ("id", "param_id")[:ids] + ("x", "y", "z")[:translation] + rotation_names + _information_fields(size)
+    return Record("edge", dtype, names, ids, rotation or "none", None, space_dim)
 
 
 PRIOR_RECORDS = {
-    SE3_PRIOR_TAG: PriorRecord(_record(2, 3, "quaternion", 6, 3), "pose", 3, TANGENT_FROM_UPPER),
-    SE3_XYZ_PRIOR_TAG: PriorRecord(_record(2, 3, None, 3, 3), "position", 3, _entry_of_upper(3).reshape(-1)),
-    SE2_PRIOR_TAG: PriorRecord(_record(1, 2, "angle", 3, 2), "pose", 2, _entry_of_upper(3).reshape(-1)),
-    SE2_XY_PRIOR_TAG: PriorRecord(_record(1, 2, None, 2, 2), "position", 2, _entry_of_upper(2).reshape(-1)),
+    SE3_PRIOR_TAG: PriorRecord(_prior_record(2, 3, "quaternion", 6, 3), "pose", 3, TANGENT_FROM_UPPER),
+    SE3_XYZ_PRIOR_TAG: PriorRecord(_prior_record(2, 3, None, 3, 3), "position", 3, _entry_of_upper(3).reshape(-1)),
+    SE2_PRIOR_TAG: PriorRecord(_prior_record(1, 2, "angle", 3, 2), "pose", 2, _entry_of_upper(3).reshape(-1)),
+    SE2_XY_PRIOR_TAG: PriorRecord(_prior_record(1, 2, None, 2, 2), "position", 2, _entry_of_upper(2).reshape(-1)),
 }
 """The prior tags read, in the order their checks run."""
 
