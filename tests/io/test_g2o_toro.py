@@ -58,7 +58,8 @@ def test_equiv_merges_the_second_vertex_into_the_first(text_file):
     written = format_g2o(graph)
     for line in ("EQUIV 3 1", VERTICES[1], "EDGE2 3 1 0.1 0 0 1 0 1 1 0 0"):
         assert line in written.splitlines()  # kept as it came
-    again = read_g2o(text_file(written, name="again.g2o"))
+    again, again_messages = read_with_warnings(text_file(written, name="again.g2o"))
+    assert len(again_messages) == 1 and "merged 1 vertices" in again_messages[0]
     assert again.ids.tolist() == graph.ids.tolist()
     np.testing.assert_array_equal(again.edge_from, graph.edge_from)
     np.testing.assert_allclose(again.measurements, graph.measurements, atol=1e-15)
