@@ -24,6 +24,7 @@ __version__ = "0.1.0"
 # public name -> module that defines it
 _LAZY = {
     "PoseGraph": "posegraph.graph",
+    "Priors": "posegraph.priors",
     "graph_facts": "posegraph.graph",
     "read_g2o": "posegraph.io.g2o",
     "write_g2o": "posegraph.io.g2o",

@@ -57,8 +57,14 @@ def hessian_at(graph, poses):
 
     held = held_vertices(graph)
     pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim)
-    blocks = linearize(np.asarray(poses, dtype=np.float64), graph)
-    return pattern, hessian_values(pattern, blocks.hessian_blocks)
+    poses = np.asarray(poses, dtype=np.float64)
+    blocks = linearize(poses, graph)
+    data = hessian_values(pattern, blocks.hessian_blocks)
+    if graph.priors is not None:  # unary edges: their diagonal blocks (posegraph.solve.unary)
+        from posegraph.solve.unary import add_prior_hessian, linearize_priors, prior_errors
+
+        add_prior_hessian(pattern, data, linearize_priors(poses, graph, prior_errors(poses, graph)))
+    return pattern, data
 
 
 @dataclass(frozen=True, eq=False)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
+from posegraph.priors import Priors, anchored_components
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
@@ -103,6 +104,12 @@ class PoseGraph:
     equations) and matrix size ``group.matrix_size``; residuals and Jacobians use its functions."""
     edge_lines: np.ndarray | None = field(default=None, repr=False)
     """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
+    priors: Priors | None = field(default=None, repr=False)
+    """Unary edges (pose and position priors, :class:`posegraph.priors.Priors`), or None: none."""
+    kept_lines: tuple = field(default=(), repr=False)
+    """Lines of the file that are not vertices or edges of the graph but belong in its output, each
+    ``"TAG rest"``, written back as read: TORO's ``EQUIV`` lines and the vertex and edge lines they
+    merged away (:mod:`posegraph.io.g2o_toro`)."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:
@@ -204,12 +211,13 @@ def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
 
 
 def component_anchors(graph: PoseGraph) -> np.ndarray:
-    """One gauge anchor per connected component that has no fixed vertex.
+    """One gauge anchor per connected component that has no fixed vertex and no prior.
 
     The anchor of such a component is its vertex with the smallest id (gtsam's
     examples and g2o anchor the first pose; for a file in id order that is the
     same vertex). Components with a ``FIX`` vertex need no anchor: the fixed
-    vertices already remove the gauge freedom. Returns the vertex indices,
+    vertices already remove the gauge freedom; nor do components a prior reaches
+    (``graph.priors``, see :mod:`posegraph.priors`). Returns the vertex indices,
     sorted.
     """
     if graph.num_vertices == 0:
@@ -217,6 +225,7 @@ def component_anchors(graph: PoseGraph) -> np.ndarray:
     count, labels = connected_components(graph)
     has_fixed = np.zeros(count, dtype=bool)
     has_fixed[labels[graph.fixed]] = True
+    has_fixed |= anchored_components(graph.priors, labels, count)
     # Smallest id per component: sort by (label, id) and take the first of each label.
     order = np.lexsort((graph.ids, labels))
     first = order[np.r_[True, labels[order][1:] != labels[order][:-1]]]

@@ -6,7 +6,8 @@ without a display and the library never changes the backend of the caller's own 
 
 Each graph is drawn as its vertex positions joined in increasing id order (the trajectory), with
 its loop-closure edges (``|id_i − id_j| ≠ 1``, see :meth:`PoseGraph.odometry_mask`) drawn as faint
-segments of the same colour. Several graphs are overlaid with a legend — e.g. the input and the
+segments of the same colour, and where its priors put its vertices (:func:`prior_positions`) as
+crosses. Several graphs are overlaid with a legend — e.g. the input and the
 optimised result.
 
 3D graphs (poses ``(n, 4, 4)``) are drawn on 3D axes; 2D graphs (``(n, 3, 3)``, SE(2)) as a top
@@ -26,7 +27,7 @@ from posegraph.atomic import atomic_path
 from posegraph.lie.group import embed_in_se3
 
 __all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances",
-           "draw_uncertainty_ellipses"]
+           "draw_uncertainty_ellipses", "prior_positions"]
 
 # Colour-blind-safe qualitative palette (Okabe & Ito 2008), cycled for more graphs.
 _COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
@@ -117,6 +118,7 @@ def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_
     """The id-ordered path of ``positions (n, d)`` and, optionally, faint loop-closure segments."""
     path = positions[np.argsort(graph.ids, kind="stable")]
     ax.plot(*path.T, color=colour, linewidth=1.0, label=label)
+    _draw_prior_positions(ax, graph, positions.shape[1], colour, label)
     closing = ~graph.odometry_mask() if loop_closures else np.zeros(graph.num_edges, dtype=bool)
     if not np.any(closing):
         return
@@ -130,6 +132,24 @@ def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_
         from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
         ax.add_collection3d(Line3DCollection(segments, **style))
+
+
+def prior_positions(graph) -> np.ndarray:
+    """``(a + b, r)``: where the priors put their vertices — ``t(Z O⁻¹)`` of each pose prior (the vertex
+    pose it measures), ``z`` of each position prior (:func:`posegraph.priors.prior_poses`); empty without priors."""
+    from posegraph.priors import prior_poses
+
+    r = graph.group.space_dim
+    return prior_poses(graph)[1][:, :r, r]
+
+
+def _draw_prior_positions(ax, graph, dimension: int, colour: str, label: str) -> None:
+    """The priors' positions (:func:`prior_positions`) as crosses, in ``dimension`` 2 (top view) or 3."""
+    points = prior_positions(graph)
+    if not len(points):
+        return
+    points = np.pad(points, ((0, 0), (0, max(dimension - points.shape[1], 0))))[:, :dimension]
+    ax.scatter(*points.T, marker="x", s=18, color=colour, linewidths=0.8, label=f"{label}: priors")
 
 
 def _equal_scales(ax, lows: list, highs: list) -> None:

@@ -78,6 +78,8 @@ def graph_info(graph) -> dict:
     information["coupled_edges"] = int(np.count_nonzero(np.any(coupling != 0, axis=(1, 2))))
     info["information"] = information
     info["group"] = graph.group.name
+    priors = graph.priors
+    info["priors"] = {"pose": priors.num_pose if priors else 0, "position": priors.num_position if priors else 0}
     chi2 = chi2_summary(graph)
     info["initial_cost"] = chi2["cost"]
     info.update(chi2=chi2["chi2"], dof=chi2["dof"], chi2_per_dof=chi2["chi2_per_dof"], chi2_by_kind=chi2["by_kind"])
@@ -102,8 +104,9 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
 
     Keys: ``cost`` (½χ², the optimiser's cost and gtsam's ``error``), ``chi2`` (Σ eᵀΩe, g2o's
     ``chi2``), ``dof`` = d·edges − d·free poses (d the tangent dimension, the information matrices'
-    size; free = neither ``FIX`` nor a gauge anchor), ``chi2_per_dof`` (NaN when
-    dof ≤ 0), ``by_kind`` (``odometry``, ``loop_closure``: ``count``, ``chi2``, ``chi2_per_edge``)
+    size; free = neither ``FIX`` nor a gauge anchor; plus the dimensions of the priors' residuals),
+    ``chi2_per_dof`` (NaN when dof ≤ 0), ``by_kind`` (``odometry``, ``loop_closure`` and, with
+    priors, ``prior``: ``count``, ``chi2``, ``chi2_per_edge``)
     and ``worst_edges`` (the :data:`WORST_EDGES` largest: ``line`` in the file or None,
     ``from_id``, ``to_id``, ``chi2``).
     """
@@ -113,13 +116,18 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
     d = graph.information.shape[-1]
     held = held_vertices(graph)
     dof = d * graph.num_edges - d * (graph.num_vertices - int(np.count_nonzero(held)))
-    total = float(chi2.sum())
     odometry = graph.odometry_mask()
     by_kind = {}
     for kind, mask in (("odometry", odometry), ("loop_closure", ~odometry)):
         count = int(np.count_nonzero(mask))
         part = float(chi2[mask].sum())
         by_kind[kind] = {"count": count, "chi2": part, "chi2_per_edge": part / count if count else float("nan")}
+    total = float(chi2.sum())
+    if graph.priors is not None:  # unary edges: their χ² and their residuals' dimensions count too
+        prior, prior_dof = _prior_chi2(graph, poses)
+        by_kind["prior"] = {"count": len(prior), "chi2": float(prior.sum()),
+                            "chi2_per_edge": float(prior.mean()) if len(prior) else float("nan")}
+        total, dof = total + float(prior.sum()), dof + prior_dof
     lines = getattr(graph, "edge_lines", None)
     worst = []
     for e in np.argsort(-chi2, kind="stable")[:WORST_EDGES]:
@@ -128,6 +136,16 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
                       "chi2": float(chi2[e])})
     return {"cost": total / 2, "chi2": total, "dof": int(dof), "chi2_per_dof": total / dof if dof > 0 else float("nan"),
             "by_kind": by_kind, "worst_edges": worst}
+
+
+def _prior_chi2(graph, poses=None) -> tuple[np.ndarray, int]:
+    """``((a + b,) χ² of each prior, the dimensions of their residuals d·a + r·b)`` at ``poses``."""
+    from posegraph.solve.unary import prior_errors, prior_squared_norms
+
+    poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    priors = graph.priors
+    dof = graph.group.dim * priors.num_pose + graph.group.space_dim * priors.num_position
+    return prior_squared_norms(prior_errors(poses, graph), priors), dof
 
 
 def optimize_report(

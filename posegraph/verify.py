@@ -426,6 +426,41 @@ def verify_all(graph=None, *, samples: int = 500, seed: int = 0, use_gtsam: bool
         import os
 
         checks += _edge_checks(Xi, Xj, graph.measurements, f"edges of {os.path.basename(name)}", gtsam)
+    if graph is not None and graph.priors is not None and len(graph.priors):
+        import os
+
+        checks += _prior_checks(graph, f"priors of {os.path.basename(graph.source or 'the graph')}", gtsam)
+    return checks
+
+
+def _prior_checks(graph, family: str, gtsam) -> list[Check]:
+    """The priors' Jacobians against central differences, their cost terms against gtsam's factors
+    (``PriorFactorPose3/2``, ``GPSFactor``, ``PoseTranslationPrior2D``: :func:`posegraph.gtsam_bridge.prior_factors`)."""
+    from posegraph.solve.unary import prior_errors, prior_jacobians, prior_squared_norms
+
+    poses, priors, group = graph.poses, graph.priors, graph.group
+    errors = prior_errors(poses, graph)
+    jacobians = prior_jacobians(poses, graph, errors)
+    r = group.space_dim
+    at_pose, at_position = poses[priors.pose_vertex], poses[priors.position_vertex]
+    residuals = {  # e(X·Exp(δ)) of each prior, written out (module docstring of posegraph.solve.unary)
+        "pose": lambda _x, t: group.log(group.inverse(priors.pose_measurements) @ at_pose @ group.exp(t) @ priors.pose_offsets),
+        "position": lambda _x, t: (at_position @ group.exp(t))[:, :r, r] - priors.position_measurements,
+    }
+    checks = []
+    for kind, jacobian in zip(("pose", "position"), jacobians):
+        count = len(jacobian)
+        if count:
+            fd = _central_columns(residuals[kind], np.zeros((count, group.dim)), np.full(count, FINITE_DIFFERENCE_STEP))
+            checks.append(Check(f"{kind} prior Jacobian ∂e/∂δ", "finite differences", family, count,
+                                _scaled_difference(jacobian, fd), FINITE_DIFFERENCE_TOLERANCE))
+    if gtsam is not None:
+        from posegraph.gtsam_bridge import poses_to_values, prior_factors
+
+        factors, values = prior_factors(graph), poses_to_values(graph.ids, poses)
+        theirs = np.array([2.0 * factors.at(k).error(values) for k in range(factors.size())])
+        checks.append(Check("prior eᵀΩe", "gtsam prior factors", family, len(theirs),
+                            _scaled_difference(prior_squared_norms(errors, priors), theirs), CLOSED_FORM_TOLERANCE))
     return checks
 
 

@@ -98,3 +98,23 @@ def test_run_gtsam_on_a_planar_graph_from_lago_and_from_the_file():
         result = run_gtsam(graph, init=init)
         assert result.poses.shape == (graph.num_vertices, 3, 3)
         assert result.final_cost == pytest.approx(ours, rel=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["priors", "toro"])
+def test_run_gtsam_on_files_gtsam_reads_otherwise(tmp_path, kind):
+    """Prior lines (which ``readG2o`` skips) get their factors; a TORO-order EDGE2 file with EQUIV lines
+    (which ``readG2o`` refuses) is given as we read it: gtsam then reaches our cost."""
+    from posegraph.solve import SolverParams, optimize
+    from tests.io.test_g2o_priors import CHAIN_2D, PRIORS_2D
+    from tests.io.test_g2o_toro import TORO_ENTRIES, toro_file
+
+    text = CHAIN_2D + "\n" + PRIORS_2D + "\n" if kind == "priors" else toro_file(TORO_ENTRIES, "EQUIV 3 1")
+    path = tmp_path / "in.g2o"
+    path.write_text(text)
+    from tests.io.helpers import read_with_warnings
+
+    graph = read_with_warnings(path)[0]  # (the EQUIV merge's warning)
+    ours = optimize(graph, "chordal", SolverParams(relative_tolerance=1e-14, absolute_tolerance=1e-14))
+    theirs = run_gtsam(str(path), graph=graph, initial=ours.poses, relative_tolerance=1e-12, absolute_tolerance=1e-12)
+    assert theirs.initial_cost == pytest.approx(ours.final_cost, rel=1e-12)
+    assert theirs.final_cost == pytest.approx(ours.final_cost, rel=1e-9, abs=1e-12)

@@ -119,3 +119,26 @@ def test_2d_png_shows_the_trajectory(tmp_path):
     plot_trajectories(path, [planar_graph()], size_inches=(5, 5), dpi=100)
     rgb = imread(path)[..., :3].reshape(-1, 3)
     assert np.count_nonzero(np.all(np.abs(rgb - to_rgb("#0072B2")) < 0.08, axis=1)) > 200
+
+
+def test_prior_positions_are_drawn_as_crosses_where_the_priors_put_their_vertices():
+    from dataclasses import replace
+
+    from posegraph.lie.group import SE3
+    from posegraph.plot import prior_positions
+    from posegraph.priors import Priors
+
+    graph = helix_graph()
+    offset = SE3.exp(np.array([0.0, 0.0, 0.5, 1.0, 2.0, 3.0]))
+    measured = graph.poses[[4]] @ offset  # a pose prior measuring X·O: it puts vertex 4 at X's position
+    priors = Priors(
+        pose_vertex=np.array([4]), pose_measurements=measured, pose_offsets=offset[None],
+        pose_information=np.eye(6)[None], position_vertex=np.array([7, 9]),
+        position_measurements=np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), position_information=np.tile(np.eye(3), (2, 1, 1)),
+    )  # fmt: skip
+    graph = replace(graph, priors=priors)
+    expected = np.r_[graph.poses[[4], :3, 3], [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]]
+    np.testing.assert_allclose(prior_positions(graph), expected, atol=1e-12)
+    ax = trajectory_figure([graph], ["helix"], top_view=True).axes[0]
+    (crosses,) = [c for c in ax.collections if c.get_label() == "helix: priors"]
+    np.testing.assert_allclose(crosses.get_offsets(), expected[:, :2], atol=1e-12)

@@ -55,3 +55,22 @@ def test_a_wrong_small_angle_branch_is_caught(monkeypatch):
     monkeypatch.setattr(so3, "right_jacobian", so3.left_jacobian)
     checks = verify_all(samples=20, use_gtsam=False)
     assert any(c.quantity == "so3.right_jacobian" and not c.passed for c in checks)
+
+
+@pytest.mark.parametrize("group_name", ["SE3", "SE2"])
+def test_a_graph_with_priors_gets_its_prior_jacobians_checked_and_a_wrong_one_caught(monkeypatch, group_name):
+    pytest.importorskip("gtsam")
+    from posegraph.lie.group import SE2, SE3
+    from posegraph.solve import unary
+    from tests.solve.test_unary import chain_graph, make_priors
+
+    group = SE3 if group_name == "SE3" else SE2
+    rng = np.random.default_rng(3)
+    graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
+    checks = [c for c in verify_all(graph, samples=5) if c.cases.startswith("priors of")]
+    assert {c.quantity for c in checks} == {"pose prior Jacobian ∂e/∂δ", "position prior Jacobian ∂e/∂δ", "prior eᵀΩe"}
+    assert all(c.passed for c in checks), format_checks(checks)
+    real = unary.prior_jacobians
+    monkeypatch.setattr(unary, "prior_jacobians", lambda *a: (real(*a)[0], -real(*a)[1]))
+    failed = {c.quantity for c in verify_all(graph, samples=5, use_gtsam=False) if not c.passed}
+    assert failed == {"position prior Jacobian ∂e/∂δ"}

@@ -232,15 +232,17 @@ def check_distinct(paths) -> None:
                 raise UsageError(f"two outputs are the same file: {a} and {b}")
 
 
-def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False):
-    """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``."""
+def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False,
+               **options):
+    """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``
+    (``options``: further reader options, :func:`reader_options`)."""
     from posegraph.io.g2o import read_g2o
 
     size = os.path.getsize(path) if path != STDIO and os.path.isfile(path) else 0
     if size > LARGE_FILE_BYTES:
         status(f"reading {path} ({size / 1e6:.1f} MB) …")
     with Ticker(status, f"reading {path}"), Timer() as t:
-        graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information)
+        graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information, **options)
     status(f"read {display_name(path)}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
     return graph, t.seconds
 
@@ -266,6 +268,18 @@ def repair_option(p: argparse.ArgumentParser) -> None:
                    help="replace each information matrix that is not positive semi-definite by the nearest one "
                         "(Frobenius norm; eigenvalues clipped to 1e-9 times the largest), with one warning, "
                         "instead of refusing the file")
+    p.add_argument("--edge2-information", choices=("auto", "g2o", "toro"), default="auto",
+                   help="the order of the 6 information entries of TORO's EDGE2 lines: auto (default) tells it per "
+                        "file (the order in which every line gives a positive semi-definite matrix; a file where "
+                        "both do and differ is refused), toro (xx xy yy tt xt yt) or g2o (xx xy xt yy yt tt)")
+    p.add_argument("--poses-only", action="store_true",
+                   help="read a file whose measurements are largely of landmarks (LANDMARK2, EDGE_SE3_TRACKXYZ, "
+                        "EDGE_SE2_XY, BR...), which is refused otherwise, skipping them: the poses alone are optimised")
+
+
+def reader_options(args) -> dict:
+    """The reader options of :func:`repair_option`'s arguments but ``--repair-information``, for :func:`read_graph`."""
+    return {"edge2_information": getattr(args, "edge2_information", "auto"), "poses_only": getattr(args, "poses_only", False)}
 
 
 def non_negative_int(text: str) -> int:

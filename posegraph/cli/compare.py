@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from posegraph.cli.common import (
+    reader_options,
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, check_output, display_name, fmt_cost, non_negative_float,
     read_graph, repair_option,
 )
@@ -70,7 +71,8 @@ def _run_ours(args, status: Status) -> dict:
     """Read, initialise and optimise: the graph, start, parameters, result and seconds per phase."""
     from posegraph.solve import optimize
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     **reader_options(args))
     with Timer() as t_init:
         start = initial_poses(graph, args)
     params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from posegraph.cli.common import EXIT_OK, check_inputs, display_name, non_negative_float, repair_option, warn
+from posegraph.cli.common import EXIT_OK, UsageError, check_inputs, display_name, non_negative_float, repair_option, warn
 
 LENGTH_UNIT = "m"
 """g2o files carry no unit; translations are in the files' own length unit, metres in the standard
@@ -28,7 +28,13 @@ EXAMPLES = """
 
 def add_arguments(p) -> None:
     p.add_argument("estimate", metavar="EST", help="estimated poses (g2o, TUM or KITTI file; - for standard input)")
-    p.add_argument("reference", metavar="GT", help="reference (ground-truth) poses (g2o, TUM or KITTI file)")
+    p.add_argument("reference", metavar="GT", nargs="?",
+                   help="reference (ground-truth) poses (g2o, TUM or KITTI file); omitted with --priors")
+    p.add_argument("--priors", action="store_true",
+                   help="compare EST (a g2o file) with its own priors instead of a reference: each prior's vertex "
+                        "against the pose the prior gives it (a position prior: its point, ATE rotation 0), "
+                        "without alignment, since the priors fix the frame (e.g. the optimised poses against "
+                        "their GNSS fixes)")
     repair_option(p)
     # 0.01 = posegraph.io.trajectory.EVO_MAX_TIME_DIFF, not imported here: --help stays free of numpy.
     p.add_argument("--max-time-diff", metavar="SECONDS", type=non_negative_float, default=0.01,
@@ -56,13 +62,20 @@ def run(args) -> int:
     from posegraph.evaluate import evaluate
     from posegraph.io.trajectory import matching_keys
 
-    check_inputs([args.estimate, args.reference])
-    estimate_stamps, estimate_poses = read_poses(args.estimate, args.repair_information)
-    reference_stamps, reference_poses = read_poses(args.reference, args.repair_information)
-    estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
+    if (args.reference is None) != args.priors:
+        raise UsageError("give a reference file GT, or --priors to compare EST with its own priors (not both)")
+    check_inputs([args.estimate] + ([args.reference] if args.reference else []))
+    if args.priors:
+        estimate_ids, estimate_poses, reference_ids, reference_poses = _against_priors(args)
+        args.no_align = True  # the priors fix the frame
+    else:
+        estimate_stamps, estimate_poses = read_poses(args.estimate, args.repair_information)
+        reference_stamps, reference_poses = read_poses(args.reference, args.repair_information)
+        estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
     result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
                       align=not args.no_align, source=args.estimate)
-    estimate, reference = display_name(args.estimate), display_name(args.reference)
+    estimate = display_name(args.estimate)
+    reference = f"the priors of {estimate}" if args.priors else display_name(args.reference)
     if result.num_matched < max(result.num_estimate, result.num_reference):
         warn(f"compared the {result.num_matched} vertex ids present in both files "
              f"({result.num_estimate} in {estimate}, {result.num_reference} in {reference})")
@@ -75,7 +88,8 @@ def run(args) -> int:
         return EXIT_OK
     print(f"estimate:  {estimate}")
     print(f"reference: {reference}")
-    print(f"matched:   {result.num_matched} poses by vertex id; ATE after "
+    matched = "priors, each with its vertex" if args.priors else "poses by vertex id"
+    print(f"matched:   {result.num_matched} {matched}; ATE after "
           + (f"a least-squares {_alignment_group(estimate_poses, reference_poses)} alignment (Umeyama, no scale)"
              if not args.no_align else "no alignment")
           + f"; RPE between consecutive ids; translations in {LENGTH_UNIT} (the files' unit), rotations in degrees")
@@ -86,6 +100,22 @@ def run(args) -> int:
     for label, stats in rows:
         print(f"{label:<24}" + "".join(f"{getattr(stats, n):>12.6f}" for n in names))
     return EXIT_OK
+
+
+def _against_priors(args):
+    """``(keys, EST's poses, keys, the poses its priors give)``, one key per prior (:func:`posegraph.priors.prior_poses`)."""
+    import numpy as np
+
+    from posegraph.errors import InputError
+    from posegraph.io.g2o import read_g2o
+    from posegraph.priors import prior_poses
+
+    graph = read_g2o(args.estimate, require_edges=False, repair_information=args.repair_information)
+    vertex, poses = prior_poses(graph)
+    if len(vertex) == 0:
+        raise InputError("--priors: the file has no prior lines to compare with", path=args.estimate)
+    keys = np.arange(len(vertex))
+    return keys, graph.poses[vertex], keys, poses
 
 
 def _alignment_group(estimate_poses, reference_poses) -> str:

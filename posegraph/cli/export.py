@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from posegraph.cli.common import (
+    reader_options,
     EXIT_OK, Status, UsageError, check_distinct, check_output, read_graph, repair_option, warn,
 )
 
@@ -71,7 +72,10 @@ def run(args) -> int:
     from posegraph.atomic import StagedOutputs
     from posegraph.io import trajectory
 
-    graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=args.repair_information)
+    graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=args.repair_information,
+                          **reader_options(args))
+    if args.open3d and graph.priors is not None and len(graph.priors):
+        warn(f"{args.open3d}: Open3D's PoseGraph has no unary edges: the file's {len(graph.priors)} priors are left out")
     order = np.argsort(graph.ids, kind="stable")
     stamps = trajectory.read_timestamp_table(args.timestamps, graph.ids)[order] if args.timestamps else None
     if args.kitti and not np.array_equal(graph.ids[order], np.arange(graph.num_vertices)):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from posegraph.cli.common import EXIT_OK, Status, display_name, fmt_cost, read_graph, repair_option
+from posegraph.cli.common import reader_options, EXIT_OK, Status, display_name, fmt_cost, read_graph, repair_option
 
 NAME = "info"
 HELP = "counts, components, degrees, information ranges, cost"
@@ -60,7 +60,8 @@ def _read_for_description(args):
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PosegraphWarning)  # the others as the command line filters them
-        graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=True)
+        graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=True,
+                              **reader_options(args))
     refusals = []
     for w in caught:
         match = _REPAIRED.search(str(w.message))
@@ -85,6 +86,8 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
         ("edges", f"{info['num_edges']}: {info['num_odometry_edges']} odometry (consecutive ids), "
                   f"{info['num_loop_closures']} loop closures"),
         ("components", str(info["num_components"])),
+        *([("priors", f"{info['priors']['pose']} pose, {info['priors']['position']} position (unary edges; "
+                      "they hold the gauge of the components they reach)")] if sum(info["priors"].values()) else []),
         ("degree", f"min {info['degree_min']}, max {info['degree_max']}, mean {info['degree_mean']:.3f}, "
                    f"median {info['degree_median']:g}"),
     ]

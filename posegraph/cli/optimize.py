@@ -7,12 +7,13 @@ import os
 import sys
 
 from posegraph.cli.common import (
+    reader_options,
     EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
     check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
     warn,
 )
 from posegraph.cli.robust import (
-    check_robust_options, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
+    check_robust_options, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
     robust_summary, run_gnc, warn_about_known_inliers,
 )
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
@@ -93,15 +94,17 @@ def run(args) -> int:
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
     weights = final_weights(held, args, result, robust)
-    inliers = output_graph(held, weights, drop=True)  # robust: χ² and covariances over the edges kept
+    prior_weights = final_prior_weights(held, args, result, robust)
+    inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights)  # robust: χ², covariances of those kept
     # the solver's last residuals are those of `inliers` unless the robust path dropped edges
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
-    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known)
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known,
+                   prior_weights)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2)
-        robust_summary(graph, weights, args)
+        robust_summary(graph, weights, args, prior_weights)
     _warn_if_chi2_high(chi2)
     warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
@@ -139,7 +142,8 @@ def _start(args, status: Status):
     """
     from posegraph.solve.residuals import cost
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     **reader_options(args))
     held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
     if graph.num_vertices > LARGE_GRAPH_POSES:
@@ -190,7 +194,8 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 
 def _write_outputs(
-    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None
+    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
+    prior_weights=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -200,7 +205,7 @@ def _write_outputs(
     printed = []
     with StagedOutputs() as outputs:
         with Ticker(status, f"writing {args.output}"), Timer() as t_write:
-            written = output_graph(graph, weights, drop=args.drop_outliers)
+            written = output_graph(graph, weights, drop=args.drop_outliers, prior_weights=prior_weights)
             if args.output == STDIO:
                 printed.append(format_g2o(written, result.poses))
             else:
@@ -213,7 +218,7 @@ def _write_outputs(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
                 file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
             )
-            report = json_text(robust_report(report, args, weights, known))
+            report = json_text(robust_report(report, args, weights, known, prior_weights))
             if args.report == STDIO:
                 printed.append(report)
             else:
@@ -276,14 +281,18 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
 
 def _dof_text(graph, chi2: dict) -> str:
     d = graph.information.shape[-1]
-    edges = sum(kind["count"] for kind in chi2["by_kind"].values())  # with --robust: the inliers
-    free = (d * edges - chi2["dof"]) // d
-    return f"{d}·{edges} edges − {d}·{free} free poses = {chi2['dof']}"
+    edges = sum(kind["count"] for name, kind in chi2["by_kind"].items() if name != "prior")  # --robust: inliers
+    priors = graph.priors
+    prior_dims = d * priors.num_pose + graph.group.space_dim * priors.num_position if priors is not None else 0
+    free = (d * edges + prior_dims - chi2["dof"]) // d
+    prior_text = f" + {prior_dims} of {len(priors)} priors" if priors is not None else ""
+    return f"{d}·{edges} edges{prior_text} − {d}·{free} free poses = {chi2['dof']}"
 
 
 def _stats_table(chi2: dict) -> list[str]:
     """``--stats``: count, χ² and χ²/edge per edge kind at the result (g2o's ``-stats``, by kind)."""
     rows = [("odometry", chi2["by_kind"]["odometry"]), ("loop closure", chi2["by_kind"]["loop_closure"])]
+    rows += [("prior", chi2["by_kind"]["prior"])] if "prior" in chi2["by_kind"] else []
     count = sum(r["count"] for _, r in rows)
     rows.append(("all", {"count": count, "chi2": chi2["chi2"],
                          "chi2_per_edge": chi2["chi2"] / count if count else float("nan")}))

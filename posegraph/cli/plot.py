@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 from posegraph.cli.common import (
+    reader_options,
     EXIT_OK, Status, UsageError, check_figure, check_inputs, display_name, non_negative_float, positive_int,
     read_graph, repair_option,
 )
@@ -55,8 +56,8 @@ def run(args) -> int:
     from posegraph.plot import plot_trajectories
 
     status = Status(True)
-    graphs = [read_graph(path, status, require_edges=False, repair_information=args.repair_information)[0]
-              for path in inputs]
+    graphs = [read_graph(path, status, require_edges=False, repair_information=args.repair_information,
+                         **reader_options(args))[0] for path in inputs]
     labels = args.labels or [os.path.basename(display_name(p)) for p in inputs]
     uncertainty = None
     if args.covariances:

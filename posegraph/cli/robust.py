@@ -103,23 +103,44 @@ def final_weights(graph, args, result, robust):
     return np.asarray(loss.weight(squared_residuals(graph, result.poses)), dtype=np.float64)
 
 
-def robust_summary(graph, weights, args) -> None:
+def final_prior_weights(graph, args, result, robust):
+    """``(u,)`` final weights of the priors (GNC's, or ρ'(s) at the result), None without ``--robust`` or priors."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
+    if graph.priors is None or not len(graph.priors) or args.robust == "none":
+        return None
+    if robust is not None:
+        return robust.prior_weights
+    from posegraph.robust.starts import measurement_residuals
+
+    return np.asarray(robust_loss(args).weight(measurement_residuals(graph, result.poses)[graph.num_edges:]))
+
+
+def robust_summary(graph, weights, args, prior_weights=None) -> None:
     """Print the outlier line of the summary, if robust: after the others, on the same stream
     (stderr when standard output carries the result or the report)."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
     if weights is not None:
         out = sys.stderr if "-" in (args.output, args.report) else sys.stdout
-        print(outlier_line(graph, weights), file=out, flush=True)
+        line = outlier_line(graph, weights)
+        if prior_weights is not None:
+            line += f"; {int(np.count_nonzero(prior_weights < OUTLIER_WEIGHT))} of {len(prior_weights)} priors"
+        print(line, file=out, flush=True)
 
 
-def robust_report(report: dict, args, weights, known=None) -> dict:
+def robust_report(report: dict, args, weights, known=None, prior_weights=None) -> dict:
     """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
-    indices with final weight below 0.5) when robust, and ``known_inliers`` (GNC's, from
+    indices with final weight below 0.5) when robust, ``outlier_priors`` (the same of the priors) with
+    priors, and ``known_inliers`` (GNC's, from
     :func:`known_inlier_facts`) when given; unchanged otherwise."""
     import numpy as np  # here, not at import: --help and the parser must not load numpy
 
     if weights is not None:
         report["robust"] = args.robust
         report["outlier_edges"] = [int(k) for k in np.flatnonzero(weights < OUTLIER_WEIGHT)]
+    if prior_weights is not None:  # priors (pose priors first, then position priors) judged outliers
+        report["outlier_priors"] = [int(k) for k in np.flatnonzero(prior_weights < OUTLIER_WEIGHT)]
     if known is not None:
         report["known_inliers"] = dict(known, mode=args.known_inliers, strict=bool(args.strict_known_inliers))
     return report
@@ -180,12 +201,17 @@ def outlier_line(graph, weights) -> str:
     return line + (f", and {rejected_odometry} odometry edges" if rejected_odometry else "")
 
 
-def output_graph(graph, weights, *, drop: bool):
-    """``graph`` without the edges judged outliers when ``drop`` and robust, else ``graph``."""
+def output_graph(graph, weights, *, drop: bool, prior_weights=None):
+    """``graph`` without the edges (and priors, ``prior_weights`` ``(u,)``) judged outliers when ``drop``
+    and robust, else ``graph``."""
     import numpy as np  # here, not at import: --help and the parser must not load numpy
 
     if not drop or weights is None:
         return graph
     from posegraph.robust.active import edge_subgraph
+    from posegraph.robust.starts import weighted_priors
 
-    return edge_subgraph(graph, np.flatnonzero(weights >= OUTLIER_WEIGHT))
+    kept = edge_subgraph(graph, np.flatnonzero(weights >= OUTLIER_WEIGHT))
+    if prior_weights is None or np.all(prior_weights >= OUTLIER_WEIGHT):
+        return kept
+    return weighted_priors(kept, (prior_weights >= OUTLIER_WEIGHT).astype(np.float64))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from posegraph.cli.common import EXIT_NOT_CONVERGED, EXIT_OK, Status, non_negative_int, read_graph, repair_option, warn
+from posegraph.cli.common import reader_options, EXIT_NOT_CONVERGED, EXIT_OK, Status, non_negative_int, read_graph, repair_option, warn
 
 NAME = "verify-jacobians"
 HELP = "check the Lie-group core and edge Jacobians"
@@ -40,7 +40,8 @@ def run(args) -> int:
             raise ImportError(f"{exc}; or run verify-jacobians --no-gtsam (finite differences only)") from exc
     graph = None
     if args.input:
-        graph, _ = read_graph(args.input, Status(True), repair_information=args.repair_information)
+        graph, _ = read_graph(args.input, Status(True), repair_information=args.repair_information,
+                              **reader_options(args))
     checks = verify_all(graph=graph, samples=args.samples, seed=args.seed, use_gtsam=not args.no_gtsam)
     print(format_checks(checks))
     failed = [c for c in checks if not c.passed]

@@ -49,6 +49,7 @@ from posegraph.errors import GraphError
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
+from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
 from posegraph.init.weights import rotation_weights, translation_information
 
@@ -87,7 +88,8 @@ def chordal_initialization(
 ) -> np.ndarray:
     """``(n, k, k)`` poses: chordal rotations, then the cost-minimising translations given them.
 
-    Fixed vertices and component anchors keep their file pose exactly. Works for any number of
+    Fixed vertices and component anchors keep their file pose exactly; a component that priors
+    reach is then moved rigidly to fit them (:mod:`posegraph.init.priors`). Works for any number of
     components, duplicate edges, degree-one vertices and information spanning many decades.
     Raises :class:`~posegraph.errors.GraphError` when the linear systems cannot be solved to
     working precision (no backend factorises them, or the solution overflows).
@@ -98,6 +100,9 @@ def chordal_initialization(
     the problem's.
     """
     require_usable(graph)
+    if graph.priors is not None:  # solved with today's anchors, then moved to fit the priors
+        poses = chordal_initialization(without_priors(graph), linear_solver=linear_solver, problem=problem)
+        return align_to_priors(graph, poses)
     if problem is None:
         problem = chordal_problem(graph, linear_solver)  # both stages share its sparsity analysis
     elif not (np.array_equal(problem.edge_from, graph.edge_from) and np.array_equal(problem.edge_to, graph.edge_to)):
@@ -124,7 +129,7 @@ def chordal_problem(graph: PoseGraph, linear_solver: str = "auto", ordering: str
     """The sparse system both chordal stages solve, analysed for ``graph``'s edges and held vertices
     (``ordering``: CHOLMOD's, of the vertex graph; ``"auto"`` as the solver's)."""
     return RelativeLeastSquares(
-        held_vertices(graph), graph.edge_from, graph.edge_to, linear_solver=linear_solver,
+        held_vertices(without_priors(graph)), graph.edge_from, graph.edge_to, linear_solver=linear_solver,
         block=graph.group.space_dim, ordering=ordering,
     )  # fmt: skip
 

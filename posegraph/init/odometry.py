@@ -30,6 +30,7 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
+from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.weights import rotation_weights
 
 __all__ = ["odometry_initialization", "spanning_tree", "TREES"]
@@ -104,8 +105,11 @@ def spanning_tree(graph: PoseGraph, tree: str = "bfs") -> tuple[np.ndarray, np.n
 def odometry_initialization(graph: PoseGraph, tree: str = "bfs") -> np.ndarray:
     """``(n, k, k)`` poses (the graph's group) composed along a spanning tree from each component's held vertices.
 
-    Held vertices (fixed, or the component's anchor) keep their file pose exactly.
+    Held vertices (fixed, or the component's anchor) keep their file pose exactly; a component
+    that priors reach is then moved rigidly to fit them (:mod:`posegraph.init.priors`).
     """
+    if graph.priors is not None:
+        return align_to_priors(graph, odometry_initialization(without_priors(graph), tree))
     n = graph.num_vertices
     parent, parent_edge = spanning_tree(graph, tree)
     # local[v]: transform from parent(v)'s frame to v's; for roots, from the world frame.

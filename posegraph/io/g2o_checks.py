@@ -13,7 +13,7 @@ import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError
 from posegraph.graph import PoseGraph, connected_components
-from posegraph.io.g2o_format import EDGE_SE2_TAG, RECORDS, TORO_TAGS, VERTEX_SE2_TAG
+from posegraph.io.g2o_format import RECORDS
 from posegraph.io.g2o_lines import Lines
 
 QUATERNION_NORM_TOLERANCE = 1e-6
@@ -42,17 +42,9 @@ def raise_first(errors: list[InputError | None]) -> None:
 def space_dimension(groups: dict[str, Lines], first_line: dict[str, int], path: str) -> int:
     """3 for a 3D file, 2 for a 2D one (by the tags of :data:`RECORDS` it holds; 3 when it holds none).
 
-    Refuses TORO's 2D tags and a file mixing 2D and 3D lines, naming the first line of the
-    dimension that comes second in the file.
+    Refuses a file mixing 2D and 3D lines, naming the first line of the dimension that comes
+    second in the file.
     """
-    toro = sorted(TORO_TAGS & groups.keys(), key=lambda tag: first_line[tag])
-    if toro:
-        raise G2oFormatError(
-            f"{toro[0]}: the older TORO 2D tags ({', '.join(sorted(TORO_TAGS))}) are not read; posegraph reads "
-            f"g2o's 2D tags ({VERTEX_SE2_TAG} / {EDGE_SE2_TAG}) and its 3D ones",
-            path,
-            first_line[toro[0]],
-        )
     firsts = {}  # space dimension -> (first line, tag)
     for tag in RECORDS.keys() & groups.keys():
         found = (first_line[tag], tag)

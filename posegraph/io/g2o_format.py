@@ -24,9 +24,11 @@ VERTEX_SE2_TAG = "VERTEX_SE2"
 """g2o's 2D vertex: ``VERTEX_SE2 id x y θ``."""
 EDGE_SE2_TAG = "EDGE_SE2"
 """g2o's 2D edge: ``EDGE_SE2 i j dx dy dθ`` and 6 information entries in ``[x, y, θ]`` order."""
-# The older TORO 2D tags: refused, not skipped, because skipping them would silently leave an
-# empty or partial graph.
-TORO_TAGS = frozenset({"VERTEX2", "EDGE2"})
+VERTEX2_TAG = "VERTEX2"
+"""TORO's 2D vertex, as ``VERTEX_SE2``."""
+EDGE2_TAG = "EDGE2"
+"""TORO's 2D edge, as ``EDGE_SE2`` but for the order of its 6 information entries, which is told
+per file (:mod:`posegraph.io.g2o_toro`; ``RECORDS`` reads them in g2o's order, after conversion)."""
 
 G2O_TO_TANGENT = np.array([3, 4, 5, 0, 1, 2])
 """Index permutation from g2o's ``[t; R]`` order to ``[ω; v]`` (its own inverse)."""
@@ -82,6 +84,17 @@ class Record(NamedTuple):
     """3 for the 3D tags (SE(3)), 2 for the planar ones (SE(2)); a file holds tags of one only."""
 
 
+_VERTEX_2D = Record(
+    "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
+    ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
+)
+_EDGE_2D = Record(
+    "edge",
+    np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64), ("info", np.float64, (6,))]),
+    ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle", SYMMETRIC_FROM_UPPER_2D,
+    space_dim=2,
+)
+
 RECORDS = {
     VERTEX_TAG: Record(
         "vertex", np.dtype([("id", np.int64), ("t", np.float64, (3,)), ("q", np.float64, (4,))]),
@@ -105,17 +118,10 @@ RECORDS = {
         ("id_from", "id_to", "x", "y", "z", "roll", "pitch", "yaw") + _INFORMATION_FIELDS, 2, "euler",
         SYMMETRIC_FROM_UPPER,
     ),
-    VERTEX_SE2_TAG: Record(
-        "vertex", np.dtype([("id", np.int64), ("t", np.float64, (2,)), ("theta", np.float64)]),
-        ("id", "x", "y", "theta"), 1, "angle", space_dim=2,
-    ),
-    EDGE_SE2_TAG: Record(
-        "edge",
-        np.dtype([("ids", np.int64, (2,)), ("t", np.float64, (2,)), ("theta", np.float64),
-                  ("info", np.float64, (6,))]),
-        ("id_from", "id_to", "dx", "dy", "dtheta") + _information_fields(3), 2, "angle",
-        SYMMETRIC_FROM_UPPER_2D, space_dim=2,
-    ),
+    VERTEX_SE2_TAG: _VERTEX_2D,
+    EDGE_SE2_TAG: _EDGE_2D,
+    VERTEX2_TAG: _VERTEX_2D,  # TORO's, the same layout
+    EDGE2_TAG: _EDGE_2D,  # its information converted to g2o's order first (posegraph.io.g2o_toro)
 }
 """The vertex and edge tags read, in the order their checks run (vertices before edges)."""
 
@@ -131,4 +137,4 @@ def records_of(space_dim: int) -> dict[str, Record]:
 
 
 READ_TAGS = frozenset(RECORDS) | {FIX_TAG}
-"""Every tag the reader reads; lines with other tags are skipped with a warning (TORO's 2D tags refused)."""
+"""Every tag the reader reads; lines with other tags are skipped with a warning."""

@@ -25,6 +25,9 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
+from posegraph.io.g2o_landmarks import landmark_refusal
+from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_priors
+from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.text_input import read_text
 from posegraph.lie import so2, so3
@@ -62,7 +65,8 @@ class _Fix(NamedTuple):
 
 
 def read_g2o(
-    path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False
+    path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False,
+    edge2_information: str = "auto", poses_only: bool = False,
 ) -> PoseGraph:
     """Read a 3D or 2D pose graph from a g2o file.
 
@@ -87,6 +91,12 @@ def read_g2o(
         are at least :data:`~posegraph.io.g2o_checks.REPAIR_EIGENVALUE_FLOOR` times its largest (the
         nearest PSD matrix, kept positive definite), with one warning; by
         default such a matrix is an error.
+    edge2_information:
+        The order of TORO's ``EDGE2`` information entries: ``"auto"`` (default) tells it per file
+        (:func:`posegraph.io.g2o_toro.edge2_information_order`), ``"toro"`` / ``"g2o"`` name it.
+    poses_only:
+        A file whose measurements are largely of landmarks (:mod:`posegraph.io.g2o_landmarks`) is
+        refused unless this is True; then its landmark lines are skipped like other unread tags.
 
     Returns
     -------
@@ -121,23 +131,29 @@ def read_g2o(
     name = os.fspath(path)
     if name == "-":  # standard input, as g2o's and Unix tools' "-"
         text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
-        return _parse(text, "<stdin>", None, require_edges=require_edges, repair_information=repair_information)
+        return _parse(text, "<stdin>", None, require_edges, repair_information, (edge2_information, poses_only))
     text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
-    return _parse(
-        text, name, source=os.path.abspath(name), require_edges=require_edges, repair_information=repair_information
-    )
+    return _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
 
 
-def _parse(text: str, path: str, source: str | None, require_edges: bool, repair_information: bool) -> PoseGraph:
+def _parse(
+    text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
+) -> PoseGraph:
     groups, first_line = group_lines(text)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
-    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS}
+    read_here = READ_TAGS | {EQUIV_TAG} | (PRIOR_TAGS if PRIOR_RECORDS.keys() & groups.keys() else frozenset())
+    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in read_here}  # (offsets: for priors)
     # Stage 1: the format of each line.
     space_dim = space_dimension(groups, first_line, path)
     table = records_of(space_dim)
     lines = {tag: groups.get(tag, empty) for tag in table}
     records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
-    notes = _skipped_note(skipped, first_line, path)
+    edge2_information, poses_only = reading
+    records = edge2_records_in_g2o_order(records, lines, path, edge2_information)  # TORO's order told apart
+    refusal = landmark_refusal(groups, set(_tags_of("edge", table)) | PRIOR_TAGS, poses_only, path)
+    if refusal is not None and require_edges:
+        raise refusal
+    notes = _skipped_note(skipped, first_line, path) + ([str(refusal)] if refusal is not None else [])
     # Stage 2: the values.
     vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)
     notes += value_notes
@@ -166,6 +182,12 @@ def _parse(text: str, path: str, source: str | None, require_edges: bool, repair
         # Every edge is an EDGE_SE3:QUAT (EDGE_SE2) line and none was repaired (a repair returns a
         # copy): the lines state the edges exactly, and the writer copies them (EdgeSource).
         graph = replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines[edge_tag].rests))
+    priors, prior_notes = read_priors(groups, space_dim, graph.ids, path, repair_information)  # unary edges
+    if priors is not None:
+        graph, notes = replace(graph, priors=priors), notes + prior_notes
+        notes += gauge_note(graph, path)
+    graph, merge_notes = merge_equivalent(graph, groups, tuple(_tags_of("vertex", table)), path)  # TORO's EQUIV
+    notes += merge_notes
     if graph.num_edges:
         notes += components_note(graph, path)
     for note in notes:

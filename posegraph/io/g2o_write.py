@@ -53,7 +53,7 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     source = graph.edge_source
     if source is not None and source.format == edge_tag and source.matches(graph):
         parts.append(_copied_lines(edge_tag, source.lines))
-        return "".join(parts)
+        return "".join(parts + _prior_lines(graph))
     measurement_values = _pose_values(graph.measurements, planar)
     if planar:
         upper = graph.information[:, UPPER_ROWS_2D, UPPER_COLS_2D]
@@ -67,7 +67,15 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
         _information_texts(upper),
     )
     parts += [edge_line % (i, j, *v, information) for i, j, v, information in ends]
-    return "".join(parts)
+    return "".join(parts + _prior_lines(graph))
+
+
+def _prior_lines(graph: PoseGraph) -> list[str]:
+    """The priors' lines after the edges (:mod:`posegraph.io.g2o_priors`), then ``graph.kept_lines``
+    (TORO's ``EQUIV`` merges, as read), each ending in a newline."""
+    from posegraph.io.g2o_priors import format_priors
+
+    return [line + "\n" for line in format_priors(graph) + list(graph.kept_lines)]
 
 
 def _pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:

@@ -148,6 +148,8 @@ class ActiveEdgeSolves:
             self._chordal, active, lambda sub: chordal_problem(sub, self.params.linear_solver, self.params.ordering)
         )
         weighted, counted, held = self._restriction(self._chordal, weights, active)
+        if held is not None and weighted.priors is not None:  # the restricted system holds by today's anchors
+            held = held_vertices(edge_subgraph(replace(self._chordal.graph, priors=None), np.flatnonzero(counted)))
         problem = self._chordal.analysis if held is None else self._chordal.analysis.restricted(counted, held)
         return chordal_initialization(weighted, problem=problem)
 
@@ -162,13 +164,20 @@ class ActiveEdgeSolves:
         return optimize(weighted, initial=start, params=params, analysis=self._solver.analysis, hold=held)
 
     def _checked(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(weights (m,) float, active (m,) bool)``, after checking shape and values."""
+        """``(weights (m + u,) float, active (m,) bool)``, after checking shape and values: one weight per
+        edge, then one per prior (``u`` of them, :func:`posegraph.robust.starts.num_priors`); ``(m,)``
+        weighs the edges alone, the priors at 1."""
+        from posegraph.robust.starts import num_priors
+
         weights = np.asarray(weights, dtype=np.float64)
-        if weights.shape != (self.graph.num_edges,):
-            raise ValueError(f"weights must have shape ({self.graph.num_edges},), got {weights.shape}")
+        m, u = self.graph.num_edges, num_priors(self.graph)
+        if weights.shape == (m,) and u:
+            weights = np.r_[weights, np.ones(u)]
+        if weights.shape != (m + u,):
+            raise ValueError(f"weights must have shape ({m + u},), got {weights.shape}")
         if not np.all(np.isfinite(weights) & (weights >= 0)):
             raise ValueError("weights must be finite and >= 0")
-        return weights, weights > 0
+        return weights, weights[:m] > 0
 
     def _analysed(self, current: AnalysedEdges | None, active: np.ndarray, analyse) -> AnalysedEdges:
         """``current`` if it :meth:`serves` ``active``, else ``analyse(graph of the active edges)``."""
@@ -180,13 +189,19 @@ class ActiveEdgeSolves:
 
     def _restriction(self, analysed: AnalysedEdges, weights: np.ndarray, active: np.ndarray):
         """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None)`` for a solve over
-        ``S`` in which only the active edges count; ``held``: the vertices the graph of the active
-        edges holds (:func:`posegraph.graph.held_vertices`: fixed, one anchor per component), None
-        when every edge of ``S`` is active."""
+        ``S`` in which only the active edges (and priors) count; ``held``: the vertices the graph of
+        the active edges and priors holds (:func:`posegraph.graph.held_vertices`: fixed, one anchor
+        per component no active prior reaches), None when every edge of ``S`` and every prior is active."""
+        from posegraph.robust.starts import weighted_priors
+
         keep = np.flatnonzero(analysed.edges)
+        m = self.graph.num_edges
         information = analysed.graph.information * weights[keep][:, None, None]
         weighted = replace(analysed.graph, information=information, edge_source=None)
+        if weighted.priors is not None:
+            weighted = weighted_priors(weighted, weights[m:])
         counted = active[keep]
-        if counted.all():
+        if counted.all() and np.all(weights[m:] > 0):
             return weighted, counted, None
-        return weighted, counted, held_vertices(edge_subgraph(analysed.graph, np.flatnonzero(counted)))
+        return weighted, counted, held_vertices(edge_subgraph(replace(analysed.graph, priors=weighted.priors),
+                                                              np.flatnonzero(counted)))

@@ -45,7 +45,9 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
-from posegraph.robust.starts import known_inlier_mask, robust_chordal_start, squared_residuals
+from posegraph.robust.starts import (
+    known_inlier_mask, measurement_dimensions, measurement_residuals, num_priors, robust_chordal_start,
+)
 from posegraph.robust.trust import (
     contradicted_odometry, best_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )
@@ -99,6 +101,9 @@ class RobustResult:
     suspicious: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     """``(k,)`` indices of trusted edges whose residual exceeds the inlier threshold at the result
     (none unless ``strict_known_inliers`` or :data:`MAX_RELEASE_ROUNDS` ran out)."""
+    prior_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """``(u,)`` final weight of every prior (pose priors, then position priors): GNC judges them like
+    the edges, never trusting them; a wrong GNSS fix ends at weight 0 like a wrong loop closure."""
 
     @property
     def outlier_edges(self) -> np.ndarray:
@@ -158,14 +163,16 @@ def optimize_robust(
     """
     begin = time.perf_counter()
     gnc = GncParams() if gnc is None else gnc
-    known = known_inlier_mask(graph, known_inliers)
+    m = graph.num_edges
+    known = _with_priors(graph, known_inlier_mask(graph, known_inliers))  # priors are never trusted: GNC weighs them
     by_odometry = known_inliers is None or (isinstance(known_inliers, str) and known_inliers == "odometry")
-    parallel = parallel_odometry_mask(graph) if by_odometry else np.zeros(graph.num_edges, dtype=bool)
+    parallel = _with_priors(graph, parallel_odometry_mask(graph) if by_odometry else np.zeros(m, dtype=bool))
     solves = ActiveEdgeSolves(graph, params, reanalyse_fraction=reanalyse_fraction)
-    thresholds = inlier_thresholds(graph.group.dim, graph.num_edges, gnc)
+    thresholds = inlier_thresholds(measurement_dimensions(graph), len(known), gnc)
     history: list = []
     run = _gnc_run(graph, initial, known & ~parallel, gnc, solves, thresholds, history, progress)
-    fallback = best_edges_of_unkept_pairs(graph, parallel, run.weights >= 0.5, squared_residuals(graph, run.result.poses))
+    s = measurement_residuals(graph, run.result.poses)[:m]
+    fallback = _with_priors(graph, best_edges_of_unkept_pairs(graph, parallel[:m], run.weights[:m] >= 0.5, s))
     if fallback.any():  # ambiguous pairs GNC kept no edge of: trust the edge that fits best, from here
         run = _trust_more(graph, run, fallback, solves, thresholds, history, progress)
     runs = [run]
@@ -176,9 +183,15 @@ def optimize_robust(
 
     run, released, suspicious = _release_doubtful(graph, run, rerun, thresholds, strict_known_inliers)
     return RobustResult(
-        run.result.poses, run.weights, run.result, run.start, history, sum(r.seconds_start for r in runs),
-        time.perf_counter() - begin, solves.analyses, run.known, np.flatnonzero(released), np.flatnonzero(suspicious),
+        run.result.poses, run.weights[:m], run.result, run.start, history, sum(r.seconds_start for r in runs),
+        time.perf_counter() - begin, solves.analyses, run.known[:m], np.flatnonzero(released[:m]),
+        np.flatnonzero(suspicious[:m]), run.weights[m:],
     )  # fmt: skip
+
+
+def _with_priors(graph, mask: np.ndarray) -> np.ndarray:
+    """``(m,)`` bool over the edges extended with False for the graph's priors: ``(m + u,)``."""
+    return np.r_[mask, np.zeros(num_priors(graph), dtype=bool)]
 
 
 def _release_doubtful(graph, run: _Run, rerun, thresholds, strict: bool):
@@ -188,22 +201,22 @@ def _release_doubtful(graph, run: _Run, rerun, thresholds, strict: bool):
     least threshold, at most :data:`MAX_RELEASE_ROUNDS` times. ``strict``: never release; the edges
     the better run rejected are named instead. Returns ``(run, released (m,) bool, suspicious (m,)
     bool)``; suspicious also holds the trusted edges above their threshold at the end."""
-    released = np.zeros(graph.num_edges, dtype=bool)
-    suspicious = np.zeros(graph.num_edges, dtype=bool)
+    released = np.zeros(len(run.known), dtype=bool)
+    suspicious = np.zeros(len(run.known), dtype=bool)
     for _ in range(MAX_RELEASE_ROUNDS):
         doubtful = _doubtful(graph, run, thresholds)
         if not doubtful.any():
             break
         trial = rerun(run.known & ~doubtful)
-        fits = truncated_cost(squared_residuals(graph, trial.result.poses), thresholds)
-        if fits >= truncated_cost(squared_residuals(graph, run.result.poses), thresholds) - 0.5 * float(np.min(thresholds)):
+        fits = truncated_cost(measurement_residuals(graph, trial.result.poses), thresholds)
+        if fits >= truncated_cost(measurement_residuals(graph, run.result.poses), thresholds) - 0.5 * float(np.min(thresholds)):
             break  # trusting them fits the graph as well: the edges spanning them were wrong, not they
         if strict:
             suspicious |= doubtful & (trial.weights < 0.5)
             break
         released |= doubtful
         run = trial
-    suspicious |= known_inliers_above(squared_residuals(graph, run.result.poses), run.known, thresholds)
+    suspicious |= known_inliers_above(measurement_residuals(graph, run.result.poses), run.known, thresholds)
     return run, released, suspicious
 
 
@@ -229,8 +242,9 @@ def _gnc_run(graph, initial, known, gnc: GncParams, solves, thresholds, history:
 def _doubtful(graph, run: _Run, thresholds) -> np.ndarray:
     """``(m,)`` bool: ``run``'s trusted edges that fail the inlier test at its result, or that every
     edge spanning them contradicts (:mod:`posegraph.robust.trust`)."""
-    above = known_inliers_above(squared_residuals(graph, run.result.poses), run.known, thresholds)
-    return above | contradicted_odometry(graph, run.known, run.weights >= 0.5)
+    above = known_inliers_above(measurement_residuals(graph, run.result.poses), run.known, thresholds)
+    m = graph.num_edges
+    return above | _with_priors(graph, contradicted_odometry(graph, run.known[:m], run.weights[:m] >= 0.5))
 
 
 def _trust_more(graph, run: _Run, more: np.ndarray, solves, thresholds, history: list, progress) -> _Run:
@@ -245,7 +259,7 @@ def _inlier_test(graph, known: np.ndarray, thresholds):
     """``poses -> (m,) bool``: an edge is an inlier when trusted or ``s = eᵀΩe ≤ c̄²`` at ``poses``."""
 
     def judged(poses):
-        return known | (squared_residuals(graph, poses) <= thresholds)
+        return known | (measurement_residuals(graph, poses) <= thresholds)
 
     return judged
 
@@ -274,11 +288,11 @@ def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: Activ
     from posegraph.solve.optimizer import _initial_poses
 
     return run_gnc(
-        lambda poses: squared_residuals(graph, poses),
+        lambda poses: measurement_residuals(graph, poses),
         lambda start, w: solves.least_squares(start, w).poses,
         _initial_poses(graph, initial),
         known,
         gnc,
-        dimension=graph.group.dim,
+        dimension=measurement_dimensions(graph),
         progress=progress,
     )

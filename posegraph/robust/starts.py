@@ -25,7 +25,8 @@ from posegraph.graph import PoseGraph
 from posegraph.robust.active import ActiveEdgeSolves
 from posegraph.robust.gnc import GncParams, GncResult, run_gnc
 
-__all__ = ["known_inlier_mask", "inlier_chain_start", "downweighted_chordal_start", "robust_chordal_start", "squared_residuals", "weighted_graph"]
+__all__ = ["known_inlier_mask", "inlier_chain_start", "downweighted_chordal_start", "robust_chordal_start", "squared_residuals",
+           "weighted_graph", "measurement_residuals", "measurement_dimensions", "num_priors"]
 
 
 def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
@@ -33,6 +34,57 @@ def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
     from posegraph.solve.residuals import edge_residuals, squared_norms
 
     return squared_norms(edge_residuals(poses, graph), graph.information)
+
+
+def num_priors(graph: PoseGraph) -> int:
+    """The number of priors (unary edges) of ``graph``, 0 without."""
+    return 0 if graph.priors is None else len(graph.priors)
+
+
+def measurement_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
+    """``(m + u,)`` squared whitened residuals of every measurement: the edges, then the ``u`` priors
+    (pose priors, then position priors): what GNC weighs, a wrong GNSS fix being an outlier like a
+    wrong loop closure."""
+    s = squared_residuals(graph, poses)
+    if not num_priors(graph):
+        return s
+    from posegraph.solve.unary import prior_errors, prior_squared_norms
+
+    return np.concatenate([s, prior_squared_norms(prior_errors(np.asarray(poses, dtype=np.float64), graph), graph.priors)])
+
+
+def measurement_known(graph: PoseGraph, known_inliers) -> np.ndarray:
+    """``(m + u,)`` bool: the trusted measurements — :func:`known_inlier_mask` over the edges, no prior —
+    or ``known_inliers`` itself when it is already such a mask."""
+    u = num_priors(graph)
+    if u and not isinstance(known_inliers, str) and np.shape(known_inliers) == (graph.num_edges + u,):
+        return np.asarray(known_inliers, dtype=bool)
+    return np.r_[known_inlier_mask(graph, known_inliers), np.zeros(u, dtype=bool)]
+
+
+def measurement_dimensions(graph: PoseGraph):
+    """The residual dimension of every measurement (for GNC's χ² thresholds): ``d``, or ``(m + u,)``
+    with priors (``d`` per edge and pose prior, ``r`` per position prior)."""
+    if not num_priors(graph):
+        return graph.group.dim
+    priors = graph.priors
+    return np.r_[np.full(graph.num_edges + priors.num_pose, graph.group.dim),
+                 np.full(priors.num_position, graph.group.space_dim)]
+
+
+def weighted_priors(graph: PoseGraph, weights: np.ndarray) -> PoseGraph:
+    """``graph`` with prior ``k``'s information scaled by ``weights[k]`` ``(u,)``, the priors of weight 0 dropped."""
+    from posegraph.priors import Priors
+
+    priors = graph.priors
+    a = priors.num_pose
+    pose, position = np.flatnonzero(weights[:a] > 0), np.flatnonzero(weights[a:] > 0)
+    kept = Priors(
+        priors.pose_vertex[pose], priors.pose_measurements[pose], priors.pose_offsets[pose],
+        priors.pose_information[pose] * weights[pose, None, None], priors.position_vertex[position],
+        priors.position_measurements[position], priors.position_information[position] * weights[a + position, None, None],
+    )  # fmt: skip
+    return replace(graph, priors=kept)
 
 
 def weighted_graph(graph: PoseGraph, weights: np.ndarray) -> PoseGraph:
@@ -101,15 +153,15 @@ def robust_chordal_start(
     (:class:`~posegraph.robust.active.ActiveEdgeSolves`; pass ``solves`` to share its analyses).
     ``progress`` gets each outer iteration's :class:`~posegraph.robust.gnc.GncIteration`.
     """
-    known = known_inlier_mask(graph, known_inliers)
+    known = measurement_known(graph, known_inliers)
     solves = ActiveEdgeSolves(graph) if solves is None else solves
     return run_gnc(
-        lambda poses: squared_residuals(graph, poses),
+        lambda poses: measurement_residuals(graph, poses),
         lambda _start, weights: solves.chordal(weights),
-        solves.chordal(np.ones(graph.num_edges)),
+        solves.chordal(np.ones(graph.num_edges + num_priors(graph))),
         known,
         params,
-        dimension=graph.group.dim,  # the χ² thresholds: 6 for SE(3), 3 for SE(2)
+        dimension=measurement_dimensions(graph),  # the χ² thresholds: 6 for SE(3), 3 for SE(2); r for position priors
         progress=progress,
         start_solved=True,
     )

@@ -60,6 +60,8 @@ class EdgeBlocks:
     """``(m, d, d)``: Ω, C-contiguous."""
     weights: np.ndarray | None = None
     """``(m,)`` per-edge weights ``w`` scaling every block of the edge, or None (all 1, no products)."""
+    priors: object | None = None
+    """The priors' blocks (:class:`posegraph.solve.unary.PriorBlocks`), None for a graph without priors."""
 
     @cached_property
     def hessian_blocks(self) -> tuple:

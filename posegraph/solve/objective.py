@@ -13,7 +13,7 @@ change to it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -21,6 +21,7 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.solve.linearize import EdgeBlocks, linearize
 from posegraph.solve.residuals import edge_errors, squared_norms, weighted_cost
+from posegraph.solve.unary import PriorErrors, linearize_priors, prior_errors, prior_squared_norms
 
 __all__ = ["Loss", "Evaluation", "Objective"]
 
@@ -47,6 +48,10 @@ class Evaluation:
     """``½ Σ eᵀΩe``, or ``½ Σ ρ(eᵀΩe)`` with a loss."""
     weights: np.ndarray | None = None
     """``(m,)`` IRLS weights ``ρ'(s)``, None without a loss."""
+    priors: PriorErrors | None = None
+    """The priors' residuals (:mod:`posegraph.solve.unary`), None for a graph without priors."""
+    prior_weights: np.ndarray | None = None
+    """``(a + b,)`` IRLS weights of the priors, None without a loss or priors."""
 
 
 class Objective:
@@ -59,15 +64,23 @@ class Objective:
         self.information = np.ascontiguousarray(graph.information)
 
     def evaluate(self, poses: np.ndarray) -> Evaluation:
-        """The cost at ``poses`` ``(n, k, k)``."""
+        """The cost at ``poses`` ``(n, k, k)``, the priors' terms included (a loss applies to them too)."""
         relative, residuals = edge_errors(poses, self.graph)
+        priors = prior_errors(poses, self.graph) if self.graph.priors is not None else None
+        prior_s = prior_squared_norms(priors, self.graph.priors) if priors is not None else np.zeros(0)
         if self.loss is None:
-            return Evaluation(relative, residuals, weighted_cost(residuals, self.information))
+            cost = weighted_cost(residuals, self.information) + 0.5 * float(np.sum(prior_s))
+            return Evaluation(relative, residuals, cost, priors=priors)
         s = squared_norms(residuals, self.information)
-        cost = 0.5 * float(np.sum(self.loss.rho(s)))
-        return Evaluation(relative, residuals, cost, np.asarray(self.loss.weight(s), dtype=np.float64))
+        cost = 0.5 * float(np.sum(self.loss.rho(s))) + 0.5 * float(np.sum(self.loss.rho(prior_s)))
+        weights = np.asarray(self.loss.weight(s), dtype=np.float64)
+        prior_weights = np.asarray(self.loss.weight(prior_s), dtype=np.float64) if priors is not None else None
+        return Evaluation(relative, residuals, cost, weights, priors, prior_weights)
 
     def linearize(self, poses: np.ndarray, evaluation: Evaluation) -> EdgeBlocks:
-        """Per-edge gradient and Hessian blocks at ``poses``, which ``evaluation`` evaluated."""
+        """Per-edge gradient and Hessian blocks at ``poses``, which ``evaluation`` evaluated (and the priors')."""
         errors = (evaluation.relative, evaluation.residuals)
-        return linearize(poses, self.graph, self.information, errors, weights=evaluation.weights)
+        blocks = linearize(poses, self.graph, self.information, errors, weights=evaluation.weights)
+        if evaluation.priors is None:
+            return blocks
+        return replace(blocks, priors=linearize_priors(poses, self.graph, evaluation.priors, evaluation.prior_weights))

@@ -29,9 +29,10 @@ still holds. The step is taken only if H still agrees with ``M`` along it
 last one, or already within the tolerances) and the cost confirms it (gain ratio); ``M`` is then
 kept for the iteration after. Measured effects: ``docs/solver.md``.
 
-Gauge: fixed vertices and the anchor of every component without one
+Gauge: fixed vertices and the anchor of every component without one and without priors
 (:func:`posegraph.graph.held_vertices`) have no variables at all, so the cost is exactly the
-graph's, with no prior added.
+graph's, with no prior added. The graph's own priors (unary edges, :mod:`posegraph.solve.unary`)
+are terms of the cost like the edges.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from posegraph.solve.result import IterationRecord, OptimizeResult
 from posegraph.solve.sparsity import (
     HessianPattern, PinnedVariables, analyze_pattern, gradient_values, hessian_values, lower_matvec,
 )
+from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
 from posegraph.solve.trust_region import (  # noqa: F401  (the termination reasons, re-exported)
     CALLBACK, CONVERGED_ABSOLUTE, CONVERGED_COST, CONVERGED_DECREMENT, CONVERGED_NOTHING, CONVERGED_PREDICTED,
     CONVERGED_RELATIVE, LAMBDA_EXCEEDED, MAX_ITERATIONS, NO_DECREASE, NON_FINITE, NOT_POSITIVE_DEFINITE,
@@ -269,6 +271,8 @@ class _Run:
             blocks = self.objective.linearize(self.poses, self.evaluation)
         with self.clock.phase("assemble"):
             gradient = gradient_values(self.pattern, blocks.gradient)
+            if blocks.priors is not None:
+                add_prior_gradient(self.pattern, gradient, blocks.priors)
             if self.pinned is not None:
                 self.pinned.zero_gradient(gradient)
         return _System(self, blocks, gradient)
@@ -338,6 +342,8 @@ class _System:
             blocks = self.blocks.hessian_blocks
         with self.run.clock.phase("assemble"):
             data = hessian_values(self.run.pattern, blocks)
+            if self.blocks.priors is not None:
+                add_prior_hessian(self.run.pattern, data, self.blocks.priors)
         del blocks
         self.blocks.release_hessian_blocks()  # assembled: H alone is used from here on
         return data if self.run.pinned is None else self.run.pinned.decouple(data)

@@ -117,13 +117,18 @@ def squared_norms(residuals: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 
 def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
-    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, k, k)`` (the graph's own poses if None).
+    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, k, k)`` (the graph's own poses if None), priors' terms included.
 
     Equals gtsam's ``NonlinearFactorGraph.error(values)`` for the graph ``gtsam.readG2o`` builds.
     """
     if poses is None:
         poses = graph.poses
-    return weighted_cost(edge_residuals(poses, graph), graph.information)
+    total = weighted_cost(edge_residuals(poses, graph), graph.information)
+    if graph.priors is not None:  # unary edges (posegraph.solve.unary)
+        from posegraph.solve.unary import prior_cost
+
+        total += prior_cost(np.asarray(poses, dtype=np.float64), graph)
+    return total
 
 
 def edge_jacobians(

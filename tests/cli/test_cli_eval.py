@@ -83,4 +83,4 @@ def test_eval_errors(tmp_path, shared_dataset):
     bad = tmp_path / "bad.g2o"
     bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 nan 0 0 0 0 0 1\n")
     assert_one_error_line(run_cli("eval", bad, shared_dataset("tinyGrid3D")), f"{bad}:2:")
-    assert_one_error_line(run_cli("eval", shared_dataset("tinyGrid3D")), "required: GT")
+    assert_one_error_line(run_cli("eval", shared_dataset("tinyGrid3D")), "give a reference file GT", "--priors")

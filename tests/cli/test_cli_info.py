@@ -121,7 +121,7 @@ def test_input_warnings_are_one_line_each(tmp_path):
         "VERTEX_SE3:QUAT 1 1 0 0 0 0 0 2",  # quaternion norm 2: normalised
         "VERTEX_SE3:QUAT 2 5 0 0 0 0 0 1",
         "VERTEX_SE3:QUAT 3 6 0 0 0 0 0 1",
-        "PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1",  # unknown tag: skipped
+        "PARAMS_CAMERACALIB 0 500 320 240 0 0",  # unknown tag: skipped
         f"EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 {info}",
         f"EDGE_SE3:QUAT 2 3 1 0 0 0 0 0 1 {info}",  # a second component
     ]) + "\n"
@@ -133,6 +133,6 @@ def test_input_warnings_are_one_line_each(tmp_path):
     assert len(warnings) == 3, run.stderr
     assert all(line.startswith(f"posegraph: warning: {path}") for line in warnings)
     assert any(f"{path}:2:" in line and "quaternion" in line for line in warnings)
-    assert any(f"{path}:5:" in line and "PARAMS_SE3OFFSET" in line for line in warnings)
+    assert any(f"{path}:5:" in line and "PARAMS_CAMERACALIB" in line for line in warnings)
     assert any("2 connected components" in line for line in warnings)
     assert re.search(r"components:\s+2", run.stdout)

@@ -108,9 +108,10 @@ def test_negative_vertex_id(text_file):
     check(text_file, lines(*GOOD, vertex(-4)), G2oFormatError, 6, "negative")
 
 
-def test_toro_two_dimensional_tags_are_refused(text_file):
-    text = lines("# a TORO file", "VERTEX2 0 0 0 0", "VERTEX2 1 1 0 0", "EDGE2 0 1 1 0 0 1 0 0 1 0 1")
-    check(text_file, text, G2oFormatError, 2, "TORO 2D tags", "VERTEX_SE2")
+def test_toro_edge2_information_of_ambiguous_order_is_refused(text_file):
+    """(More TORO cases: tests/io/test_g2o_toro.py.)"""
+    text = lines("# a TORO file", "VERTEX2 0 0 0 0", "VERTEX2 1 1 0 0", "EDGE2 0 1 1 0 0 2 0 1 2 0 1")
+    check(text_file, text, G2oFormatError, 4, "EDGE2", "--edge2-information")
 
 
 @pytest.mark.parametrize("first, second", [(0, 1), (1, 0)])
