@@ -95,23 +95,29 @@ def trajectory_figure(
             lows.append(positions.min(axis=0))
             highs.append(positions.max(axis=0))
     _equal_scales(ax, lows, highs)
-    handles, names = ax.get_legend_handles_labels()
-    if uncertainty is not None and graphs:
-        from matplotlib.patches import Ellipse
-
-        scale = draw_uncertainty_ellipses(ax, poses[0], **uncertainty)
-        handles.append(Ellipse((0, 0), 1, 0.6, facecolor="none", edgecolor=ELLIPSE_COLOUR))
-        names.append(f"1σ position ellipses ×{scale:.3g}")
+    _legend(ax, poses[0] if uncertainty is not None and graphs else None, uncertainty, loop_closures)
     if title:
         ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def _legend(ax, poses, uncertainty: dict | None, loop_closures: bool) -> None:
+    """The legend: the drawn lines, then (given ``poses``) the uncertainty ellipses drawn here for
+    them and the faint loop closures' entry."""
+    handles, names = ax.get_legend_handles_labels()
+    if poses is not None:
+        from matplotlib.patches import Ellipse
+
+        scale = draw_uncertainty_ellipses(ax, poses, **uncertainty)
+        handles.append(Ellipse((0, 0), 1, 0.6, facecolor="none", edgecolor=ELLIPSE_COLOUR))
+        names.append(f"1σ position ellipses ×{scale:.3g}")
     if loop_closures:
         from matplotlib.lines import Line2D
 
         handles.append(Line2D([], [], color="0.5", alpha=0.5, linewidth=0.8))
         names.append("loop closures (faint)")
     ax.legend(handles, names, loc="upper left", fontsize="small")
-    fig.tight_layout()
-    return fig
 
 
 def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_closures: bool) -> None:

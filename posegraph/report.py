@@ -176,15 +176,6 @@ def optimize_report(
     ``factorizations`` is the number of damped systems factorised, 0 when the step reused the
     previous factorisation or none was needed).
     """
-    records = [_record(r) for r in result.records]
-    settings = {"init": init, "method": result.method}
-    if params is not None:
-        settings.update(
-            max_iterations=int(params.max_iterations),
-            relative_tolerance=float(params.relative_tolerance),
-            absolute_tolerance=float(params.absolute_tolerance),
-            linear_solver_requested=str(params.linear_solver),
-        )
     chi2 = chi2_summary(graph, result.poses) if chi2 is None else chi2
     from posegraph import __version__
 
@@ -195,7 +186,7 @@ def optimize_report(
         "output": str(output_path),
         "num_vertices": graph.num_vertices,
         "num_edges": graph.num_edges,
-        "settings": settings,
+        "settings": _settings(init, result, params),
         "cost_definition": "half chi2: 1/2 sum of e^T Omega e over the edges (gtsam's error; g2o's chi2 is twice it)",
         "file_cost": float(file_cost),
         "initial_cost": float(result.initial_cost),
@@ -209,19 +200,37 @@ def optimize_report(
         "converged": bool(result.converged),
         "termination": str(result.termination),
         "linear_solver": str(result.linear_solver),
-        "seconds": {
-            **{k: float(v) for k, v in seconds.items()},
-            "total": float(sum(seconds.values())),
-            "solver": {
-                "setup": float(result.seconds_setup),
-                "linearize": float(result.seconds_linearize),
-                "assemble": float(result.seconds_assemble),
-                "factorize": float(result.seconds_factorize),
-                "solve": float(result.seconds_solve),
-                "total": float(result.seconds_total),
-            },
+        "seconds": _seconds(seconds, result),
+        "records": [_record(r) for r in result.records],
+    }
+
+
+def _settings(init: str, result, params) -> dict:
+    """The report's ``settings``: the start, the method and, given ``params``, the solver's options."""
+    settings = {"init": init, "method": result.method}
+    if params is not None:
+        settings.update(
+            max_iterations=int(params.max_iterations),
+            relative_tolerance=float(params.relative_tolerance),
+            absolute_tolerance=float(params.absolute_tolerance),
+            linear_solver_requested=str(params.linear_solver),
+        )
+    return settings
+
+
+def _seconds(seconds: dict, result) -> dict:
+    """The report's ``seconds``: the CLI's phases, their total, and the solver's own split."""
+    return {
+        **{k: float(v) for k, v in seconds.items()},
+        "total": float(sum(seconds.values())),
+        "solver": {
+            "setup": float(result.seconds_setup),
+            "linearize": float(result.seconds_linearize),
+            "assemble": float(result.seconds_assemble),
+            "factorize": float(result.seconds_factorize),
+            "solve": float(result.seconds_solve),
+            "total": float(result.seconds_total),
         },
-        "records": records,
     }
 
 
