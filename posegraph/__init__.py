@@ -40,6 +40,8 @@ _LAZY = {
     "InputError": "posegraph.errors",
     "marginal_covariances": "posegraph.covariance",
     "joint_covariance": "posegraph.covariance",
+    "certify": "posegraph.certification.certificate",
+    "Certificate": "posegraph.certification.certificate",
 }
 
 __all__ = sorted(_LAZY) + ["lie"]
