@@ -60,6 +60,10 @@ def add_arguments(p) -> None:
                         "(n, d, d), d = 6 for SE(3) in gtsam's tangent order [rotation; translation] and body frame, "
                         "3 for SE(2) [x, y, θ]); FIX vertices and each component's anchor are held, so theirs are "
                         "zero and the others are relative to them; written with OUT, or neither")
+    p.add_argument("--certify", action="store_true",
+                   help="also certify SE-Sync's isotropic problem (posegraph certify), polish its estimate with LM on "
+                        "the file's cost, write that, and report whether it ends where LM from the chordal start does; "
+                        "exit status 1 when not certified")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
 
@@ -83,6 +87,11 @@ def run(args) -> int:
         else:
             result = optimize(held, initial=start, params=params)
     seconds["optimise"] = t_opt.seconds
+    certified = None
+    if args.certify:
+        from posegraph.cli.certified import polish_certified
+
+        result, certified = polish_certified(held, result, params, status, seconds)
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
     weights = final_weights(held, args, result, robust)
@@ -91,15 +100,15 @@ def run(args) -> int:
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
-    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known)
+    _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known, certified)
     if not args.quiet:
-        _print_summary(args, graph, result, params, file_cost, seconds, chi2)
+        _print_summary(args, graph, result, params, file_cost, seconds, chi2, certified)
         robust_summary(graph, weights, args)
     _warn_if_chi2_high(chi2)
     warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
-        return EXIT_OK if drawn else EXIT_NOT_CONVERGED
+        return EXIT_OK if drawn and (certified is None or certified["certified"]) else EXIT_NOT_CONVERGED
     warn(f"the solver stopped before converging ({result.termination}, {result.iterations} iterations); "
          f"the result was written to {display_name_out(args.output)} anyway")
     return EXIT_NOT_CONVERGED
@@ -112,6 +121,10 @@ def display_name_out(path: str) -> str:
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
     check_robust_options(args)
+    if args.certify:
+        from posegraph.cli.certified import check_certify_options
+
+        check_certify_options(args)
     check_output(args.output, inputs=[args.input], allow_input=args.force, what="result", stdout=True)
     if args.report:
         check_output(args.report, inputs=[args.input], what="report", stdout=True)
@@ -183,7 +196,8 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 
 def _write_outputs(
-    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None
+    args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
+    certified=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -206,6 +220,8 @@ def _write_outputs(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
                 file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
             )
+            if certified is not None:
+                report["certify"] = certified
             report = json_text(robust_report(report, args, weights, known))
             if args.report == STDIO:
                 printed.append(report)
@@ -243,7 +259,7 @@ def _draw(args, status: Status, graph, result) -> bool:
     return True
 
 
-def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict) -> None:
+def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict, certified=None) -> None:
     """The summary, on stdout (stderr when stdout carries the result or the report)."""
     out = sys.stderr if STDIO in (args.output, args.report) else sys.stdout
     lines = [
@@ -262,6 +278,10 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
         f"output:         {display_name_out(args.output)}"
         + "".join(f", {p}" for p in (args.report, args.plot, args.covariances) if p),
     ]
+    if certified is not None:
+        from posegraph.cli.certified import certify_summary
+
+        lines += certify_summary(certified)
     if args.stats:
         lines += _stats_table(chi2)
     print("\n".join(lines), file=out, flush=True)
