@@ -31,7 +31,7 @@ RELATIVE_DECREMENT_TOLERANCE = 1e-10
 """Take the last step and stop once the Newton decrement ``−gᵀΔ`` is below this fraction of F: the
 cost then agrees with the optimum's to ~10 digits, and after that quadratically convergent step
 the gradient is at round-off."""
-MIN_DAMPING, MAX_DAMPING = 1e-10, 1e10
+MIN_DAMPING, MAX_DAMPING = 1e-6, 1e10
 """Marquardt damping μ (relative to diag(H)): the least used when a Newton step fails, and the most tried."""
 
 
@@ -110,9 +110,11 @@ def refine_poses(problem: SyncProblem, u: np.ndarray, anchor: int = 0, max_itera
         data, gradient = hessian_values(pattern, blocks), gradient_values(pattern, grads)
         while damping <= MAX_DAMPING:
             step, decrement, predicted = _damped_step(solver, pattern, data, gradient, damping)
-            if step is not None and damping == 0.0 and decrement <= RELATIVE_DECREMENT_TOLERANCE * cost:
-                # at the optimum to round-off: take the last Newton step (the gradient, which Λ is
-                # read from, drops to round-off with it) without asking the cost to fall
+            if step is not None and decrement <= RELATIVE_DECREMENT_TOLERANCE * cost:
+                if damping > 0.0 and _damped_step(solver, pattern, data, gradient, 0.0)[0] is not None:
+                    step = solver.solve(-gradient)  # H is positive definite here: the pure Newton step
+                # at the optimum to round-off: take the last step (the gradient, which Λ is read
+                # from, drops to round-off with it) without asking the cost to fall
                 return retract_poses(u, pattern.expand(step)), cost - 0.5 * decrement, iteration
             trial = None if step is None else retract_poses(u, pattern.expand(step))
             gain = -np.inf if trial is None else (cost - objective(problem, trial, maps)) / predicted
