@@ -10,7 +10,7 @@
    along the negative eigenvector, and SE-Sync's rounding of its last point.
 
 ``certified`` is True only when S is numerically PSD *and* the rounded estimate's suboptimality
-bound ``F(x̂) − tr Λ`` is at most :data:`RELATIVE_GAP_TOLERANCE`·F: a relaxation that is not tight (a
+bound ``F(x̂) − tr Λ`` is at most :data:`RELATIVE_GAP_TOLERANCE`·F + :data:`ABSOLUTE_GAP_TOLERANCE`: a relaxation that is not tight (a
 rank > d solution whose rounding loses) is reported as not certified, with the bound.
 """
 
@@ -31,7 +31,9 @@ __all__ = ["Certificate", "certify", "RELATIVE_GAP_TOLERANCE", "isotropic_graph"
            "blocks_to_poses"]
 
 RELATIVE_GAP_TOLERANCE = 1e-6
-"""Largest ``(F(x̂) − tr Λ) / F`` still called certified (SE-Sync prints F to 6 digits)."""
+"""Largest ``(F(x̂) − tr Λ) / F`` still called certified (SE-Sync prints F to 6 digits) …"""
+ABSOLUTE_GAP_TOLERANCE = 1e-9
+"""… plus this much, for the noise-free graphs whose F is 0 to round-off."""
 
 
 @dataclass
@@ -157,7 +159,7 @@ def _lap(start: float, seconds: dict | None = None) -> float:
 def _certificate(value, lambdas, check, rank, eta, seconds, poses) -> Certificate:
     dual = float(np.trace(lambdas, axis1=1, axis2=2).sum())
     bound = value - dual
-    tight = bound <= RELATIVE_GAP_TOLERANCE * max(abs(value), 1e-300)
+    tight = bound <= RELATIVE_GAP_TOLERANCE * abs(value) + ABSOLUTE_GAP_TOLERANCE
     if not check.positive_semidefinite:
         status = f"not certified: S has a negative eigenvalue ≈ {check.min_eigenvalue:.3g} < −η"
     elif not tight:
