@@ -41,6 +41,8 @@ RITZ_ITERATIONS = (4, 40)
 is PSD (the null vectors seed the block: λ_min ≈ 0 at once) and when it is not (the eigenvector is
 the staircase's escape direction)."""
 MAX_SHIFT_DOUBLINGS = 60
+GOLDEN_ANGLE = 2.399963229728653
+"""Frequency step of the generic starting columns (an irrational multiple of π, so no column aliases)."""
 
 
 def lambda_blocks(problem: SyncProblem, u: np.ndarray, gradient: np.ndarray | None = None) -> np.ndarray:
@@ -132,7 +134,9 @@ def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, seed: 
     """Block inverse iteration with the factorised ``S + σ I``: the smallest Ritz pair of S."""
     dim = matrix.pattern.dimension
     rows = np.swapaxes(u, 0, 1).reshape(u.shape[1], -1).T  # (dim, r): the rows of X
-    block = np.concatenate([rows, np.random.default_rng(seed).standard_normal((dim, 3))], axis=1)
+    # three fixed, deterministic, generic columns (numpy.random would cost ~17 ms of imports per process)
+    generic = np.cos(np.outer(np.arange(dim) + 1.0, (seed + np.arange(1, 4)) * GOLDEN_ANGLE))
+    block = np.concatenate([rows, generic], axis=1)
     for _ in range(iterations):
         block, _ = np.linalg.qr(solver.solve(block))
     applied = np.stack([matrix.matvec(column) for column in block.T], axis=1)
