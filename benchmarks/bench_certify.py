@@ -3,6 +3,7 @@
     python -m benchmarks.bench_certify                              # the 12 files of issue #25
     python -m benchmarks.bench_certify --sesync /path/to/SE-Sync    # also time SE-Sync's binary
     python -m benchmarks.bench_certify --repeat 7 --out certify.json path/to/other.g2o
+    python -m benchmarks.bench_certify --choices --repeat 3       # PSD test and candidate alternatives
 
 Files: sphere2500, torus3D, parking-garage, smallGrid3D, sphere_bignoise_vertex3, intel, manhattan
 from ``../shared/datasets`` and city10000, CSAIL, MIT, kitti_00, ais2klinik from ``--sesync-data``
@@ -107,6 +108,54 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _best_of(repeat: int, function) -> tuple[float, object]:
+    """``(least seconds over repeat calls, last result)``."""
+    import time
+
+    times, result = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = function()
+        times.append(time.perf_counter() - start)
+    return min(times), result
+
+
+def verification_choices(path: Path, repeat: int) -> dict:
+    """Seconds of three ways to test S ⪰ −ηI at the certified point, in this process: the Cholesky of
+    S + ηI (ours, as SE-Sync), scipy's LOBPCG (4 vectors, unpreconditioned) and ARPACK shift-invert
+    (``eigsh(S, sigma=−η)``, SuperLU); and of two ways to the rank-d candidate: LM on the isotropic
+    graph then Newton (ours), and Newton on F straight from the chordal start."""
+    import numpy as np
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spl
+
+    from posegraph.certification import certificate as cert
+    from posegraph.certification.local import refine_poses
+    from posegraph.certification.problem import sync_problem
+    from posegraph.certification.verify import certificate_matrix, lambda_blocks, verify
+    from posegraph.init.chordal import chordal_initialization
+    from posegraph.io.g2o import read_g2o
+
+    graph = read_g2o(path)
+    problem = sync_problem(graph)
+    u = cert.poses_to_blocks(cert.certify(graph).poses)
+    matrix = certificate_matrix(problem, lambda_blocks(problem, u))
+    lower = sp.csc_matrix((matrix.data, matrix.pattern.indices, matrix.pattern.indptr), shape=(matrix.pattern.dimension,) * 2)
+    full = (lower + sp.tril(lower, -1).T).tocsr()
+    start = np.random.default_rng(0).standard_normal((full.shape[0], 4))
+    out = {"cholesky": _best_of(repeat, lambda: verify(matrix, u))[0]}
+    out["lobpcg"], values = _best_of(repeat, lambda: spl.lobpcg(full, start, largest=False, tol=1e-8, maxiter=500)[0])
+    out["lobpcg_min"] = float(np.min(values))
+    out["eigsh_shift_invert"], values = _best_of(repeat, lambda: spl.eigsh(full, k=4, sigma=-1e-3, which="LM")[0])
+    out["eigsh_min"] = float(np.min(values))
+    iso = cert.isotropic_graph(graph, problem)
+    out["lm_then_newton"] = _best_of(repeat, lambda: refine_poses(problem, cert.poses_to_blocks(cert.candidate_poses(graph, problem))))[0]
+    out["newton_from_chordal"], newton = _best_of(repeat, lambda: refine_poses(
+        problem, cert.poses_to_blocks(chordal_initialization(iso))))
+    out["newton_iterations"] = newton[2]
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_certify", description=__doc__.splitlines()[0])
     parser.add_argument("files", nargs="*", type=Path, help="g2o files (default: the issue's 12 that exist here)")
@@ -114,8 +163,14 @@ def main(argv=None) -> int:
     parser.add_argument("--sesync-data", type=Path, default=SESYNC_DATA, help="folder of SE-Sync's data/*.g2o")
     parser.add_argument("--repeat", type=int, default=5, help="measured rounds per file (default 5)")
     parser.add_argument("--out", type=Path, help="write the rows as JSON here")
+    parser.add_argument("--choices", action="store_true",
+                        help="instead: time the alternatives for the PSD test and for the candidate (in-process)")
     args = parser.parse_args(argv)
     files = args.files or default_files(args.sesync_data)
+    if args.choices:
+        for path in files:
+            print(path.stem, json.dumps(verification_choices(path, args.repeat)), flush=True)
+        return 0
     rows = []
     for path in files:
         rows.append(row(path, measure(path, args.repeat, args.sesync), args.sesync))

@@ -27,7 +27,7 @@ from posegraph.certification.problem import SyncProblem, euclidean_gradient, obj
 from posegraph.certification.verify import DEFAULT_ETA, certificate_matrix, lambda_blocks, verify
 from posegraph.graph import PoseGraph
 
-__all__ = ["Certificate", "certify", "RELATIVE_GAP_TOLERANCE", "isotropic_graph", "poses_to_blocks",
+__all__ = ["Certificate", "certify", "RELATIVE_GAP_TOLERANCE", "isotropic_graph", "candidate_poses", "poses_to_blocks",
            "blocks_to_poses"]
 
 RELATIVE_GAP_TOLERANCE = 1e-6
@@ -108,7 +108,7 @@ def _anchor(graph: PoseGraph) -> int:
     return int(fixed[0]) if fixed.size else int(np.argmin(graph.ids))
 
 
-def _candidate(graph: PoseGraph, problem: SyncProblem) -> np.ndarray:
+def candidate_poses(graph: PoseGraph, problem: SyncProblem) -> np.ndarray:
     """LM on :func:`isotropic_graph` from the chordal start: poses ``(n, k, k)``."""
     from posegraph.solve import optimize
 
@@ -127,7 +127,7 @@ def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, eta: float = D
     anchor, seconds = _anchor(graph), {}
     start = time.perf_counter()
     if poses is None:
-        u = poses_to_blocks(_candidate(graph, problem))
+        u = poses_to_blocks(candidate_poses(graph, problem))
         seconds["candidate"] = _lap(start)
         u = refine_poses(problem, u, anchor)[0]
         seconds["refine"] = _lap(start, seconds)
