@@ -86,3 +86,17 @@ def test_never_a_false_yes(group, seed):
     problem, rng = sync_problem(graph), np.random.default_rng(seed)
     lowest = min(_random_start_minimum(problem, rng, group) for _ in range(15))
     assert lowest >= certificate.sesync_objective * (1 - 1e-9)
+
+
+def test_output_gauge_keeps_the_first_fixed_vertex():
+    """FIX plays no part in SE-Sync's problem; the estimate is moved rigidly to keep the first FIX pose."""
+    import dataclasses
+
+    graph, truth = loop_graph(13, n=15, loops=8, group=SE3)
+    fixed = np.zeros(15, dtype=bool)
+    fixed[[5, 9]] = True
+    certificate = certify(dataclasses.replace(graph, fixed=fixed))
+    assert certificate.certified
+    np.testing.assert_allclose(certificate.poses[5], graph.poses[5], atol=1e-12)
+    relative = np.linalg.inv(certificate.poses[5]) @ certificate.poses
+    np.testing.assert_allclose(relative, np.linalg.inv(truth[5]) @ truth, atol=1e-7)
