@@ -6,7 +6,7 @@ import sys
 
 from posegraph.cli.common import (
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, UsageError, check_distinct, check_output, display_name,
-    non_negative_float, positive_int, read_graph, repair_option,
+    positive_float, positive_int, read_graph, repair_option,
 )
 
 NAME = "certify"
@@ -34,7 +34,7 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", metavar="OUT.g2o",
                    help="write the certified estimate (SE-Sync's rounded poses; - for standard output)")
     p.add_argument("--report", metavar="REPORT.json", help="write the certificate as JSON (- for standard output)")
-    p.add_argument("--eta", type=non_negative_float, default=None, metavar="ETA",
+    p.add_argument("--eta", type=positive_float, default=None, metavar="ETA",
                    help="PSD tolerance: S counts as PSD when S + ETA I factorises (default SE-Sync's 1e-3)")
     p.add_argument("--max-rank", type=positive_int, default=10, metavar="R",
                    help="highest rank of the Riemannian staircase (default 10, SE-Sync's rmax)")

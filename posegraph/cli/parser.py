@@ -26,6 +26,7 @@ examples:
   posegraph info sphere2500.g2o
   posegraph optimize sphere2500.g2o -o sphere2500-opt.g2o --report report.json --plot before-after.png
   posegraph compare parking-garage.g2o
+  posegraph certify sphere2500.g2o --report certificate.json
   posegraph eval sphere2500-opt.g2o ground-truth.g2o
   posegraph <command> --help      (options and examples of one command)
 """

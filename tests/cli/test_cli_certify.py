@@ -71,8 +71,9 @@ def test_bad_input_exit_two_writes_nothing(tmp_path):
         assert read_g2o(tmp_path / "cut.g2o").num_edges == cut.num_edges
 
 
-def test_optimize_certify_reports_the_basin(tmp_path):
-    path, _ = _graph_file(tmp_path, SE3, rotation_noise=0.05, translation_noise=0.05)
+@pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
+def test_optimize_certify_reports_the_basin(tmp_path, group):
+    path, _ = _graph_file(tmp_path, group, rotation_noise=0.05, translation_noise=0.05)
     run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--certify", "--report", tmp_path / "r.json")
     assert run.returncode == 0, run.stderr
     section = json.loads((tmp_path / "r.json").read_text())["certify"]
