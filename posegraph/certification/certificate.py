@@ -115,24 +115,27 @@ def candidate_poses(graph: PoseGraph, problem: SyncProblem) -> np.ndarray:
     return optimize(isotropic_graph(graph, problem)).poses
 
 
-def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, eta: float = DEFAULT_ETA,
+def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, refine: bool = False, eta: float = DEFAULT_ETA,
             staircase: bool = True, max_rank: int = 10) -> Certificate:  # fmt: skip
     """Certify a global minimiser of SE-Sync's isotropic objective for ``graph`` (module docstring).
 
-    ``poses`` ``(n, k, k)``: certify these poses as they are (no refinement; their rotations with the
-    best translations define Λ) instead of finding a candidate; ``staircase=False`` stops after the
-    rank-d test; ``max_rank`` caps the staircase (SE-Sync's ``rmax``).
+    ``poses`` ``(n, k, k)``: certify these poses as they are (their rotations with the best
+    translations define Λ; no solving, no staircase) — poses optimised for another cost, e.g. LM's on
+    the g2o cost, are *not* a critical point of F and will not certify; with ``refine=True`` they are
+    instead the start of the Newton refinement (in place of the LM candidate). ``staircase=False``
+    stops after the rank-d test; ``max_rank`` caps the staircase (SE-Sync's ``rmax``).
     """
     problem = sync_problem(graph)
     anchor, seconds = _anchor(graph), {}
     start = time.perf_counter()
+    solve = poses is None or refine
     if poses is None:
-        u = poses_to_blocks(candidate_poses(graph, problem))
+        poses = candidate_poses(graph, problem)
         seconds["candidate"] = _lap(start)
+    u = poses_to_blocks(np.asarray(poses, dtype=np.float64))
+    if solve:
         u = refine_poses(problem, u, anchor)[0]
         seconds["refine"] = _lap(start, seconds)
-    else:
-        u = poses_to_blocks(np.asarray(poses, dtype=np.float64))
     value = objective(problem, u)
     u_best = u.copy()
     u_best[:, :, 0] = translations_given_rotations(problem, u[:, :, 1:], anchor)
@@ -140,7 +143,7 @@ def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, eta: float = D
     check = verify(certificate_matrix(problem, lambdas), u_best, eta)
     seconds["verify"] = _lap(start, seconds)
     rank = problem.d
-    if not check.positive_semidefinite and poses is None and staircase:
+    if not check.positive_semidefinite and solve and staircase:
         from posegraph.certification.staircase import riemannian_staircase
 
         found = riemannian_staircase(problem, u_best, check, eta, max_rank)
