@@ -78,6 +78,10 @@ def run(args) -> int:
     from posegraph.solve import optimize
 
     graph, held, start, file_cost, seconds = _start(args, status)
+    if args.certify:  # refuse a graph SE-Sync's problem is not defined on before any solving
+        from posegraph.certification.problem import sync_problem
+
+        sync_problem(held)
     params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
     robust = None
     with Timer() as t_opt:
