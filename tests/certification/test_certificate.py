@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import posegraph
 from posegraph.certification.certificate import certify
@@ -119,3 +121,20 @@ def test_anisotropic_optimum_certifies_only_after_refinement(group):
     refined = certify(graph, poses=lm, refine=True)
     assert refined.certified and "candidate" not in refined.seconds
     assert refined.sesync_objective == pytest.approx(certify(graph).sesync_objective, rel=1e-9)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10_000), rotation_noise=st.floats(0.0, 0.1), two_d=st.booleans())
+def test_certified_objective_never_exceeds_the_truths(seed, rotation_noise, two_d):
+    """Property: the truth is a feasible point, so a certified global minimum is at most F(truth), and
+    the bound holds: F(truth) ≥ tr Λ."""
+    from posegraph.certification.certificate import poses_to_blocks
+    from posegraph.certification.problem import objective
+
+    group = SE2 if two_d else SE3
+    graph, truth = loop_graph(seed, n=12, loops=8, rotation_noise=rotation_noise, translation_noise=0.05, group=group)
+    certificate = certify(graph)
+    assert certificate.certified
+    at_truth = objective(sync_problem(graph), poses_to_blocks(truth))
+    assert certificate.sesync_objective <= at_truth * (1 + 1e-9) + 1e-12
+    assert certificate.dual_bound <= at_truth * (1 + 1e-9) + 1e-12
