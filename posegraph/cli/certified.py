@@ -55,8 +55,8 @@ def polish_certified(held, chordal_result, params, status: Status, seconds: dict
         "max_rotation_difference_rad": rotation, "same_basin": bool(same),
     }  # fmt: skip
     if not certificate.certified:
-        warn(f"the isotropic problem was not certified ({certificate.status}); the result is LM polished from "
-             "its best estimate")
+        warn(f"SE-Sync's isotropic problem was {certificate.status}; the result is LM's polish of its best "
+             "estimate")
     return polished, section
 
 
@@ -66,7 +66,7 @@ def certify_summary(section: dict) -> list[str]:
     return [
         f"certificate:    {'certified' if section['certified'] else 'NOT certified'} (SE-Sync's isotropic problem: "
         f"F(x) = {section['sesync_objective']:.6g}, bound {section['suboptimality_bound']:.3g}, rank {section['rank']})",
-        f"polished:       cost {section['polished_cost']:.12g} from the certified estimate, "
+        f"polished:       cost {section['polished_cost']:.12g} from the certificate's estimate, "
         f"{section['chordal_lm_cost']:.12g} from the chordal start ({verdict}: cost difference "
         f"{section['cost_difference']:.3g}, poses differ by up to {section['max_translation_difference']:.3g} m and "
         f"{section['max_rotation_difference_rad']:.3g} rad)",
