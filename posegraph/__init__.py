@@ -42,6 +42,8 @@ _LAZY = {
     "marginal_covariances": "posegraph.covariance",
     "joint_covariance": "posegraph.covariance",
     "optimize_many": "posegraph.batch.many",
+    "certify": "posegraph.certification.certificate",
+    "Certificate": "posegraph.certification.certificate",
 }
 
 __all__ = sorted(_LAZY) + ["lie"]

@@ -70,6 +70,10 @@ def file_options(p) -> None:
     p.add_argument("--stats", action="store_true",
                    help="print count, chi2 and chi2 per edge by edge kind (odometry, loop closure) at the result")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
+    p.add_argument("--certify", action="store_true",
+                   help="also certify SE-Sync's isotropic problem (posegraph certify), polish its estimate with LM on "
+                        "the file's cost, write that, and report whether it ends where LM from the chordal start does; "
+                        "exit status 1 when not certified")
 
 
 def run(args) -> int:
@@ -82,6 +86,10 @@ def run(args) -> int:
     from posegraph.solve import optimize
 
     graph, held, start, file_cost, seconds = _start(args, status)
+    if args.certify:  # refuse a graph SE-Sync's problem is not defined on before any solving
+        from posegraph.certification.problem import sync_problem
+
+        sync_problem(held)
     params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
     robust = None
     with Timer() as t_opt:
@@ -91,6 +99,11 @@ def run(args) -> int:
         else:
             result = optimize(held, initial=start, params=params)
     seconds["optimise"] = t_opt.seconds
+    certified = None
+    if args.certify:
+        from posegraph.cli.certified import polish_certified
+
+        result, certified = polish_certified(held, result, params, status, seconds)
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
     weights = final_weights(held, args, result, robust)
@@ -101,15 +114,15 @@ def run(args) -> int:
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
     _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known,
-                   prior_weights)
+                   prior_weights, certified)
     if not args.quiet:
-        _print_summary(args, graph, result, params, file_cost, seconds, chi2)
+        _print_summary(args, graph, result, params, file_cost, seconds, chi2, certified)
         robust_summary(graph, weights, args, prior_weights)
     _warn_if_chi2_high(chi2)
     warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
-        return EXIT_OK if drawn else EXIT_NOT_CONVERGED
+        return EXIT_OK if drawn and (certified is None or certified["certified"]) else EXIT_NOT_CONVERGED
     warn(f"the solver stopped before converging ({result.termination}, {result.iterations} iterations); "
          f"the result was written to {display_name_out(args.output)} anyway")
     return EXIT_NOT_CONVERGED
@@ -122,6 +135,10 @@ def display_name_out(path: str) -> str:
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
     check_robust_options(args)
+    if args.certify:
+        from posegraph.cli.certified import check_certify_options
+
+        check_certify_options(args)
     check_output(args.output, inputs=[args.input], allow_input=args.force, what="result", stdout=True)
     if args.report:
         check_output(args.report, inputs=[args.input], what="report", stdout=True)
@@ -195,7 +212,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 def _write_outputs(
     args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
-    prior_weights=None,
+    prior_weights=None, certified=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -218,6 +235,8 @@ def _write_outputs(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
                 file_cost=file_cost, seconds=seconds, params=params, chi2=chi2,
             )
+            if certified is not None:
+                report["certify"] = certified
             report = json_text(robust_report(report, args, weights, known, prior_weights))
             if args.report == STDIO:
                 printed.append(report)
@@ -255,7 +274,7 @@ def _draw(args, status: Status, graph, result) -> bool:
     return True
 
 
-def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict) -> None:
+def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict, certified=None) -> None:
     """The summary, on stdout (stderr when stdout carries the result or the report)."""
     out = sys.stderr if STDIO in (args.output, args.report) else sys.stdout
     lines = [
@@ -274,6 +293,10 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
         f"output:         {display_name_out(args.output)}"
         + "".join(f", {p}" for p in (args.report, args.plot, args.covariances) if p),
     ]
+    if certified is not None:
+        from posegraph.cli.certified import certify_summary
+
+        lines += certify_summary(certified)
     if args.stats:
         lines += _stats_table(chi2)
     print("\n".join(lines), file=out, flush=True)

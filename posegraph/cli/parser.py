@@ -14,7 +14,7 @@ import sys
 
 from posegraph.cli.common import PROG, ArgumentParser
 
-COMMANDS = ("optimize", "batch", "compare", "verify-jacobians", "info", "eval", "plot", "export")
+COMMANDS = ("optimize", "batch", "compare", "verify-jacobians", "info", "eval", "plot", "export", "certify")
 """The subcommands, in the order of ``--help``; ``posegraph.cli.<name with _ for ->`` implements each."""
 
 DESCRIPTION = "SE(3) pose-graph optimisation over g2o files, cross-checked against gtsam."
@@ -27,6 +27,7 @@ examples:
   posegraph optimize sphere2500.g2o -o sphere2500-opt.g2o --report report.json --plot before-after.png
   posegraph batch data/*.g2o -o results/ --report summary.json   (many files, in parallel on Dask)
   posegraph compare parking-garage.g2o
+  posegraph certify sphere2500.g2o --report certificate.json
   posegraph eval sphere2500-opt.g2o ground-truth.g2o
   posegraph <command> --help      (options and examples of one command)
 """

@@ -1,0 +1,95 @@
+"""`posegraph certify` and `optimize --certify` end to end: exit statuses, report, atomic outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from posegraph.errors import InputWarning
+from posegraph.io.g2o import read_g2o, write_g2o
+from posegraph.lie.group import SE2, SE3
+from tests.certification.graphs import loop_graph
+from tests.cli.conftest import assert_one_error_line, run_cli
+
+REPORT_FIELDS = {"certified", "sesync_objective", "dual_bound", "suboptimality_bound", "min_eigenvalue", "rank",
+                 "seconds", "eta", "status"}
+
+
+def _graph_file(tmp_path, group, name="in.g2o", **noise):
+    graph, truth = loop_graph(21, n=25, loops=15, group=group, **noise)
+    path = tmp_path / name
+    write_g2o(path, graph)
+    return path, truth
+
+
+@pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
+def test_certified_graph_exit_zero_with_report_and_output(tmp_path, group):
+    path, _ = _graph_file(tmp_path, group, rotation_noise=0.05, translation_noise=0.05)
+    run = run_cli("certify", path, "-o", tmp_path / "out.g2o", "--report", tmp_path / "r.json")
+    assert run.returncode == 0, run.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert REPORT_FIELDS <= set(report) and report["certified"] is True
+    assert report["rank"] == group.space_dim and {"read", "candidate", "refine", "verify"} <= set(report["seconds"])
+    assert f"{report['sesync_objective']:.6g}" in run.stdout and "certified:           yes" in run.stdout
+    out = read_g2o(tmp_path / "out.g2o")
+    assert out.num_vertices == 25 and out.group.name == group.name
+    from posegraph.certification.certificate import certify
+
+    again = certify(read_g2o(path), poses=out.poses)  # the written poses certify (to the file's digits)
+    assert again.sesync_objective == pytest.approx(report["sesync_objective"], rel=1e-6)
+
+
+def test_not_certified_exit_one_prints_the_bound(tmp_path):
+    graph, _ = loop_graph(0, n=10, loops=10, rotation_noise=2.0, translation_noise=0.5, group=SE2)
+    write_g2o(tmp_path / "hard.g2o", graph)
+    run = run_cli("certify", tmp_path / "hard.g2o", "--report", tmp_path / "r.json", "-o", tmp_path / "o.g2o")
+    assert run.returncode == 1, run.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["certified"] is False and report["suboptimality_bound"] > 0
+    assert "certified:           NO" in run.stdout and "suboptimality bound:" in run.stdout
+    assert (tmp_path / "o.g2o").exists()  # results are still written
+
+
+def test_bad_input_exit_two_writes_nothing(tmp_path):
+    graph, _ = loop_graph(6, n=6, loops=0)
+    keep = graph.edge_from != 2
+    import dataclasses
+
+    cut = dataclasses.replace(graph, edge_from=graph.edge_from[keep], edge_to=graph.edge_to[keep],
+                              measurements=graph.measurements[keep], information=graph.information[keep])
+    write_g2o(tmp_path / "cut.g2o", cut)
+    run = run_cli("certify", tmp_path / "cut.g2o", "-o", tmp_path / "o.g2o", "--report", tmp_path / "r.json", "-q")
+    assert run.returncode == 2 and "Traceback" not in run.stderr  # the reader also warns of the two components
+    assert run.stderr_lines[-1].startswith("posegraph: error: ") and "certification needs one" in run.stderr_lines[-1]
+    assert not (tmp_path / "o.g2o").exists() and not (tmp_path / "r.json").exists()
+    assert_one_error_line(run_cli("certify", tmp_path / "missing.g2o"), "missing.g2o")
+    same = run_cli("certify", tmp_path / "cut.g2o", "-o", tmp_path / "cut.g2o", "-q")
+    assert_one_error_line(same)
+    with pytest.warns(InputWarning, match="2 connected components"):
+        assert read_g2o(tmp_path / "cut.g2o").num_edges == cut.num_edges
+
+
+@pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
+def test_optimize_certify_reports_the_basin(tmp_path, group):
+    path, _ = _graph_file(tmp_path, group, rotation_noise=0.05, translation_noise=0.05)
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--certify", "--report", tmp_path / "r.json")
+    assert run.returncode == 0, run.stderr
+    section = json.loads((tmp_path / "r.json").read_text())["certify"]
+    assert section["certified"] and section["same_basin"]
+    assert abs(section["cost_difference"]) <= 1e-6 * section["chordal_lm_cost"]
+    assert section["max_rotation_difference_rad"] < 1e-4
+    assert "certificate:    certified" in run.stdout and "same basin" in run.stdout
+    robust = run_cli("optimize", path, "-o", tmp_path / "o2.g2o", "--certify", "--robust", "gnc")
+    assert_one_error_line(robust, "--certify")
+
+
+def test_shared_datasets_match_sesync_digits(shared_dataset):
+    """F(x) to SE-Sync's six printed digits (issue #25's table), certified, through the command line."""
+    for name, expected in (("smallGrid3D", "1025.4"), ("intel", "52.3482"), ("sphere2500", "1687.01")):
+        run = run_cli("certify", shared_dataset(name), "--report", "-", "-q")
+        assert run.returncode == 0, run.stderr
+        report = json.loads(run.stdout)
+        assert report["certified"] and f"{report['sesync_objective']:.6g}" == expected
+        assert np.isfinite(report["min_eigenvalue"]) and abs(report["suboptimality_bound"]) < 1e-6 * 2000
