@@ -68,6 +68,14 @@ def _gtsam_pose(gtsam, matrix: np.ndarray):
     return gtsam.Pose3(matrix)
 
 
+def _gtsam_similarity(gtsam, matrix: np.ndarray):
+    """``Similarity3(R, t/s, s)`` of a Sim(3) matrix ``[[s R, t], [0, 1]]`` (gtsam's is ``[[R, t/s], [0, 1/s]]``)."""
+    from posegraph.lie import sim3
+
+    s = float(sim3.scale(matrix))
+    return gtsam.Similarity3(gtsam.Rot3(sim3.rotation(matrix)), matrix[:3, 3] / s, s)
+
+
 def poses_to_values(ids: np.ndarray, poses: np.ndarray):
     """``gtsam.Values`` holding ``Pose3(poses[k])`` (``Pose2`` for SE(2) poses) under key ``ids[k]``.
 

@@ -45,7 +45,7 @@ parts).  At ``λ = 0`` they are SO(3)'s ``(1, B, C)`` (the SE(3) V), at ``θ = 0
 * Both small (``|z| = √(λ² + θ²) < _SERIES_RADIUS``): the double Taylor series
   ``b = Σ λʲ (−θ²)ᵏ / (j! (2k+1)! (j+2k+2))``, ``c = Σ λʲ (−θ²)ᵏ / (j! (2k+2)! (j+2k+3))``
   (expand ``e^{λτ}`` and the Rodrigues ratios in τ, integrate each monomial), truncated at
-  ``j + 2k ≤ _SERIES_ORDER``: the first term left out is below ``0.5¹⁹/19! ≈ 2e-23``.
+  ``j + 2k ≤ _SERIES_ORDER``: the first term left out is below ``0.7²¹/21! ≈ 1e-23``.
 
 Log and V⁻¹
 -----------
@@ -88,10 +88,10 @@ __all__ = [
     "act_jacobians", "v_coefficients", "g2o_log",
 ]  # fmt: skip
 
-_SERIES_RADIUS = 0.5
+_SERIES_RADIUS = 0.7
 """``|z| = √(λ² + θ²)`` below which V's ``b, c`` are the double Taylor series (module docstring)."""
-_SERIES_ORDER = 18
-"""Highest total degree ``j + 2k`` kept in the double series (terms below ~2e-23 dropped)."""
+_SERIES_ORDER = 20
+"""Highest total degree ``j + 2k`` kept in the double series (the first left out is below 0.7²¹/21! ≈ 1e-23)."""
 QUADRATURE_NODES = 10
 """Gauss–Legendre nodes for the Jacobian blocks ``∫[t(τ)]× R(τ) dτ`` and ``∫t(τ) dτ``."""
 
@@ -259,10 +259,14 @@ def hat(xi) -> np.ndarray:
 
 
 def vee(X) -> np.ndarray:
-    """Inverse of :func:`hat`: ``(..., 4, 4) -> (..., 7)``; λ is the mean of the diagonal."""
+    """Inverse of :func:`hat`: ``(..., 4, 4) -> (..., 7)``; ω from the skew part, λ the mean of the diagonal.
+
+    The mean is taken as ``X₀₀ + ((X₁₁ − X₀₀) + (X₂₂ − X₀₀))/3``, exact when the diagonal is ``λ I``.
+    """
     X = _as_float(X)
     _check_last(X, (4, 4), "X")
-    lam = np.trace(X[..., :3, :3], axis1=-2, axis2=-1) / 3.0
+    first = X[..., 0, 0]
+    lam = first + ((X[..., 1, 1] - first) + (X[..., 2, 2] - first)) / 3.0
     return np.concatenate([so3.vee(X[..., :3, :3]), X[..., :3, 3], lam[..., None]], axis=-1)
 
 
