@@ -103,6 +103,9 @@ class PoseGraph:
     equations) and matrix size ``group.matrix_size``; residuals and Jacobians use its functions."""
     edge_lines: np.ndarray | None = field(default=None, repr=False)
     """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
+    file_format: object | None = field(default=None, repr=False)
+    """What a reader keeps to write the file back as it came (a Sim(3) file's variant and camera numbers:
+    :class:`posegraph.io.g2o_sim3.Sim3Format`); None if nothing."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:

@@ -26,6 +26,7 @@ from posegraph.io.g2o_checks import (
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
+from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
 from posegraph.io.text_input import read_text
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
@@ -130,6 +131,8 @@ def read_g2o(
 
 def _parse(text: str, path: str, source: str | None, require_edges: bool, repair_information: bool) -> PoseGraph:
     groups, first_line = group_lines(text)
+    if is_sim3_file(groups):  # VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP: their own module
+        return read_sim3(groups, first_line, path, source, require_edges=require_edges, repair_information=repair_information)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
     skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in READ_TAGS}
     # Stage 1: the format of each line.

@@ -85,7 +85,7 @@ __all__ = [
     "hat", "vee", "exp", "log", "adjoint", "ad", "right_jacobian", "right_jacobian_inverse", "left_jacobian",
     "left_jacobian_inverse", "inverse", "compose", "between", "act", "from_rotation_translation_scale",
     "rotation", "translation", "scale", "compose_jacobians", "inverse_jacobian", "between_jacobians",
-    "act_jacobians", "v_coefficients", "g2o_log",
+    "act_jacobians", "v_coefficients", "g2o_exp", "g2o_exp_inverse", "g2o_log",
 ]  # fmt: skip
 
 _SERIES_RADIUS = 0.7
@@ -462,42 +462,79 @@ def act_jacobians(S, p):
     return J, M.copy()
 
 
-# --- g2o's own Log (its EdgeSim3 error) ------------------------------------------------------
+# --- g2o's own Exp and Log (its file format and its EdgeSim3 error) ---------------------------
 
 _G2O_EPS = 1e-5
-"""g2o's ``Sim3::log`` threshold on ``|σ|`` and on ``1 − d``, ``d = (tr R − 1)/2`` (``sim3.h``)."""
+"""g2o's threshold in ``Sim3(Vector7)`` and ``Sim3::log`` (``g2o/types/sim3/sim3.h``): on ``|σ|``, on θ
+(Exp) and on ``1 − d``, ``d = (tr R − 1)/2`` (Log)."""
+
+
+def _g2o_w_coefficients(theta, sigma, s, rotation_small):
+    """g2o's ``(A, B, C)`` of ``W = A Ω + B Ω² + C I`` (its V(ω, σ)), with its first-order branches.
+
+    ``C = 1`` where ``|σ| < 1e-5`` (exact: ``(s − 1)/σ``); where ``rotation_small``, the θ = 0 limits
+    ``((σ−1)s+1)/σ²``, ``((σ²/2−σ+1)s−1)/σ³`` (``½``, ``⅙`` if also ``|σ| < 1e-5``); elsewhere the closed
+    forms (SO(3)'s ``B``, ``C`` at ``|σ| < 1e-5``). All 1-D; every division has a safe divisor.
+    """
+    sigma_small = np.abs(sigma) < _G2O_EPS
+    sg = np.where(sigma_small, 1.0, sigma)
+    th = np.where(rotation_small, 1.0, theta)
+    C = np.where(sigma_small, 1.0, (s - 1.0) / sg)
+    A_near = np.where(sigma_small, 0.5, ((sg - 1.0) * s + 1.0) / (sg * sg))
+    B_near = np.where(sigma_small, 1.0 / 6.0, ((0.5 * sg * sg - sg + 1.0) * s - 1.0) / (sg * sg * sg))
+    _, B_rotation, C_rotation = _closed_abc(th)
+    a, b, c = s * np.sin(th), s * np.cos(th), th * th + sigma * sigma
+    A_general = (a * sigma + (1.0 - b) * th) / (th * c)
+    B_general = (C - ((b - 1.0) * sigma + a * th) / c) / (th * th)
+    A = np.where(rotation_small, A_near, np.where(sigma_small, B_rotation, A_general))
+    B = np.where(rotation_small, B_near, np.where(sigma_small, C_rotation, B_general))
+    return A, B, C
+
+
+def _g2o_w(w, sigma, rotation_small) -> np.ndarray:
+    """g2o's ``W`` ``(n, 3, 3)`` for ``w (n, 3)``, ``sigma (n,)``."""
+    A, B, C = _g2o_w_coefficients(np.linalg.norm(w, axis=1), sigma, np.exp(sigma), rotation_small)
+    return _combine(C, A, B, w)
+
+
+def g2o_exp(xi) -> np.ndarray:
+    """g2o's ``Sim3(Vector7)`` of ``[ω; υ; σ]``: ``[[e^σ Exp(ω), W υ], [0, 1]]`` with g2o's ``W`` (``(..., 7) -> (..., 4, 4)``).
+
+    How g2o reads the classic ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines. Equal to :func:`exp`
+    except in g2o's first-order branches (``|σ| < 1e-5``: ``C = 1``, off by ``σ/2`` relative; θ < 1e-5).
+    The rotation is the exact ``Exp(ω)`` (g2o's ``I + Ω + Ω²/2`` below θ = 1e-5, renormalised, differs by ``O(θ³)``).
+    """
+    x, batch = _flat(xi, (7,), "xi")
+    w, u, sigma = x[:, :3], x[:, 3:6], x[:, 6]
+    t = (_g2o_w(w, sigma, np.linalg.norm(w, axis=1) < _G2O_EPS) @ u[:, :, None])[:, :, 0]
+    return _assemble(np.exp(sigma)[:, None, None] * so3.exp(w), t, batch)
+
+
+def g2o_exp_inverse(S) -> np.ndarray:
+    """The ``[ω; υ; σ]`` that :func:`g2o_exp` maps to ``S`` (``(..., 4, 4) -> (..., 7)``): what to write in a
+    classic g2o Sim(3) line so that g2o reads ``S`` back. ``ω = so3.log(R)``, ``σ = log s``, ``υ = W⁻¹ t``."""
+    R, t, s, batch = _split(S)
+    w = so3.log(R)
+    sigma = np.log(s)
+    u = np.linalg.solve(_g2o_w(w, sigma, np.linalg.norm(w, axis=1) < _G2O_EPS), t[:, :, None])[:, :, 0]
+    return np.concatenate([w, u, sigma[:, None]], axis=-1).reshape(batch + (7,))
 
 
 def g2o_log(S) -> np.ndarray:
-    """g2o's ``Sim3::log`` (``g2o/types/sim3/sim3.h``), which ``EdgeSim3`` uses as its error: ``(..., 4, 4) -> (..., 7)``.
+    """g2o's ``Sim3::log``, which ``EdgeSim3`` uses as its error: ``(..., 4, 4) -> (..., 7)``.
 
     Equal to :func:`log` to first order only: where ``1 − d < 1e-5`` (θ below ~4.5e-3) g2o takes
-    ``ω = ½ vee(R − Rᵀ)`` (``sin θ`` along the axis, not θ) and ``(A, B) = (½, ⅙)``; where ``|σ| < 1e-5``
-    it takes ``C = 1``; elsewhere ``θ = acos d`` and the closed forms.  Reproduced so that the χ²
-    reported for a g2o Sim(3) file is the one g2o computes (``docs/g2o.md``).
+    ``ω = ½ vee(R − Rᵀ)`` (``sin θ`` along the axis, not θ) with the θ = 0 limits of ``W``; where
+    ``|σ| < 1e-5`` it takes ``C = 1``; elsewhere ``θ = acos d`` and the closed forms, ``υ = W⁻¹ t``.
+    Reproduced so that the χ² reported for a g2o Sim(3) file is the one g2o computes (``docs/g2o.md``).
     """
     R, t, s, batch = _split(S)
     sigma = np.log(s)
     d = np.clip(0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
-    delta = so3.vee(R) * 2.0  # g2o's deltaR(R) = vee(R − Rᵀ)
     near = d > 1.0 - _G2O_EPS
     theta = np.arccos(d)
     factor = np.where(near, 0.5, theta / (2.0 * np.sqrt(np.where(near, 1.0, 1.0 - d * d))))
-    w = factor[:, None] * delta
-    small_sigma = np.abs(sigma) < _G2O_EPS
-    s_safe_sigma = np.where(small_sigma, 1.0, sigma)
-    C = np.where(small_sigma, 1.0, (s - 1.0) / s_safe_sigma)
-    _, B_rot, C_rot = _closed_abc(np.where(near, 1.0, theta))
-    theta_sq = np.where(near, 1.0, theta * theta)
-    a, b, c = s * np.sin(theta), s * np.cos(theta), theta_sq + sigma * sigma
-    A_general = (a * sigma + (1.0 - b) * theta) / (np.where(near, 1.0, theta) * c)
-    B_general = (C - ((b - 1.0) * sigma + a * theta) / c) / theta_sq
-    sigma_sq = s_safe_sigma * s_safe_sigma
-    A_near = np.where(small_sigma, 0.5, ((sigma - 1.0) * s + 1.0) / sigma_sq)
-    B_near = np.where(small_sigma, 1.0 / 6.0, ((0.5 * sigma_sq - sigma + 1.0) * s - 1.0) / (sigma_sq * s_safe_sigma))
-    A = np.where(near, A_near, np.where(small_sigma, B_rot, A_general))
-    B = np.where(near, B_near, np.where(small_sigma, C_rot, B_general))
-    W = so3.hat(w)
-    M = A[:, None, None] * W + B[:, None, None] * (W @ W) + C[:, None, None] * np.eye(3)
-    u = np.linalg.solve(M, t[:, :, None])[:, :, 0]
+    w = (2.0 * factor)[:, None] * so3.vee(R)  # g2o's deltaR(R) = vee(R − Rᵀ) = 2 vee(R)
+    A, B, C = _g2o_w_coefficients(theta, sigma, s, near)
+    u = np.linalg.solve(_combine(C, A, B, w), t[:, :, None])[:, :, 0]
     return np.concatenate([w, u, sigma[:, None]], axis=-1).reshape(batch + (7,))
