@@ -218,7 +218,7 @@ def _check_scales(s: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2
     bad = np.flatnonzero(~(s > 0.0))
     if bad.size == 0:
         return None
-    return G2oFormatError(f"{tag} scale is {s[bad[0]]!r}; a similarity's scale must be > 0", path, int(numbers[bad[0]]))
+    return G2oFormatError(f"{tag} scale is {float(s[bad[0]])!r}; a similarity's scale must be > 0", path, int(numbers[bad[0]]))
 
 
 def _check_quaternions(q: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2oFormatError | None:
