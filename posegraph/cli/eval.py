@@ -76,7 +76,8 @@ def run(args) -> int:
     print(f"estimate:  {estimate}")
     print(f"reference: {reference}")
     print(f"matched:   {result.num_matched} poses by vertex id; ATE after "
-          + (f"a least-squares {_alignment_group(estimate_poses, reference_poses)} alignment (Umeyama, no scale)"
+          + (f"a least-squares {_alignment_group(estimate_poses, reference_poses)} alignment "
+             + ("(Umeyama with scale, each pose's scale applied)" if _alignment_group(estimate_poses, reference_poses) == "Sim(3)" else "(Umeyama, no scale)")
              if not args.no_align else "no alignment")
           + f"; RPE between consecutive ids; translations in {LENGTH_UNIT} (the files' unit), rotations in degrees")
     names = ("rmse", "mean", "median", "std", "min", "max")
@@ -90,5 +91,9 @@ def run(args) -> int:
 
 def _alignment_group(estimate_poses, reference_poses) -> str:
     """``"SE(2)"`` when both trajectories are planar ``(n, 3, 3)`` (:func:`posegraph.evaluate.evaluate` then
-    aligns in the plane), else ``"SE(3)"``."""
+    aligns in the plane), ``"Sim(3)"`` when either carries scales (a similarity alignment), else ``"SE(3)"``."""
+    from posegraph.evaluate import is_similarity_trajectory
+
+    if is_similarity_trajectory(estimate_poses) or is_similarity_trajectory(reference_poses):
+        return "Sim(3)"
     return "SE(2)" if estimate_poses.shape[-1] == reference_poses.shape[-1] == 3 else "SE(3)"
