@@ -112,16 +112,23 @@ _B_TABLE = _series_table(2, 1)
 _C_TABLE = _series_table(3, 2)
 
 
-def _powers(x: np.ndarray, count: int) -> np.ndarray:
-    """``(n, count)``: ``x⁰ … x^{count−1}``."""
-    return np.cumprod(np.concatenate([np.ones_like(x)[:, None], np.repeat(x[:, None], count - 1, axis=1)], axis=1), axis=1)
+_BC_TABLE = np.concatenate([_B_TABLE, _C_TABLE], axis=1)  # (J, 2K): b's columns, then c's
 
 
 def _series_bc(theta_sq: np.ndarray, lam: np.ndarray):
-    lam_powers = _powers(lam, _B_TABLE.shape[0])
-    theta_powers = _powers(theta_sq, _B_TABLE.shape[1])
-    b = np.einsum("nj,jk,nk->n", lam_powers, _B_TABLE, theta_powers)
-    c = np.einsum("nj,jk,nk->n", lam_powers, _C_TABLE, theta_powers)
+    """The double series of ``b, c`` by Horner's rule: in λ for every power of θ² at once, then in θ²."""
+    in_lam = np.broadcast_to(_BC_TABLE[-1], (lam.shape[0], _BC_TABLE.shape[1])).copy()
+    column = lam[:, None]
+    for row in _BC_TABLE[-2::-1]:
+        in_lam *= column
+        in_lam += row
+    K = _B_TABLE.shape[1]
+    b, c = in_lam[:, K - 1].copy(), in_lam[:, 2 * K - 1].copy()
+    for k in range(K - 2, -1, -1):
+        b *= theta_sq
+        b += in_lam[:, k]
+        c *= theta_sq
+        c += in_lam[:, K + k]
     return b, c
 
 
