@@ -233,8 +233,12 @@ def _build(
     rng: np.random.Generator,
     parameters: dict,
     group: LieGroup = SE3,
+    unit_scale_odometry: bool = False,
 ) -> SyntheticDataset:
-    """Noisy graph of ``group`` from ground truth ``(n, k, k)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer)."""
+    """Noisy graph of ``group`` from ground truth ``(n, k, k)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer).
+
+    ``unit_scale_odometry`` (Sim(3)): the odometry edges measure no scale change (a monocular
+    tracker cannot), their rotation blocks divided by their scale after the noise."""
     n = len(truth)
     if n < 2:
         raise ValueError(f"{name}: a pose graph needs at least 2 poses, got {n}")
@@ -280,6 +284,9 @@ def _build(
     if noise.noiseless:
         delta[:] = 0.0
     measurements = exact @ group.exp(delta)
+    if unit_scale_odometry:
+        block = measurements[: n - 1, :3, :3]
+        block /= np.cbrt(np.linalg.det(block))[:, None, None]
 
     information = np.empty((m, d, d))
     information[is_odometry] = _information(*odometry)
@@ -630,14 +637,19 @@ def monocular(
     """A monocular camera's keyframes driving ``laps`` laps of a wavy loop: a Sim(3) graph with scale drift.
 
     As in monocular SLAM's essential graph (Strasdat et al., "Scale drift-aware large scale
-    monocular SLAM", RSS 2010): the true poses are rigid (scale 1), the odometry edges ``k → k+1``
-    measure each step with a log-scale error ``~N(0, odometry_scale_sigma²)`` that compounds along
-    the chain (the composed start drifts in scale, ``e^{±σ√n}``), and the loop closures, tying each
-    keyframe to the three nearest of the previous lap, carry the true relative scale (``σ =
-    loop_scale_sigma``). Lap ``l`` node ``k`` is at angle ``φ = 2πk/N`` on a circle of ``radius``
-    squashed to an ellipse (0.6 in y), height ``2 sin 3φ`` and a lap offset of 0.5 m outwards,
-    facing along the path. The graph's group is :data:`~posegraph.lie.group.SIM3_G2O` (g2o's
-    ``EDGE_SIM3`` cost); it is written as ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines.
+    monocular SLAM", RSS 2010). The map's scale ``c_k`` random-walks, ``log c_{k+1} − log c_k ~
+    N(0, odometry_scale_sigma²)``; keyframe ``k``'s true Sim(3) pose is ``[R_k / c_k, p_k]`` (true
+    rotation and position, the map's local scale), so a relative pose measures a step in the
+    local scale, ``c_k R_kᵀ (p_{k+1} − p_k)``. The odometry edges ``k → k+1`` measure no scale change
+    (scale 1: the drift is their log-scale error, hence ``Ω_λλ = odometry_scale_sigma⁻²``), so the
+    composed start is the drifted trajectory a monocular tracker reports; the loop closures, tying
+    each keyframe to the three nearest of the previous lap, carry the true relative scale
+    ``c_i / c_j`` (``σ = loop_scale_sigma``), as a Sim(3) loop detector measures it. Lap ``l`` node ``k``
+    is at angle ``φ = 2πk/N`` on a circle of ``radius`` squashed to an ellipse (0.6 in y), height
+    ``2 sin 3φ``, laps 0.5 m apart, facing along the path. The graph's group is
+    :data:`~posegraph.lie.group.SIM3_G2O` (g2o's ``EDGE_SIM3`` cost); it is written as
+    ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines. ``ground_truth`` is ``[R_k / c_k, p_k]``: with
+    each pose's scale applied (``eval``, ``export``), the true trajectory.
     """
     L = _check_count("laps", laps, 1)
     N = _check_count("nodes_per_lap", nodes_per_lap, 4)
@@ -647,12 +659,17 @@ def monocular(
     position = np.stack([ring * np.cos(phi), 0.6 * ring * np.sin(phi), 2.0 * np.sin(3 * phi)], axis=1)
     forward = np.stack([-ring * np.sin(phi), 0.6 * ring * np.cos(phi), 6.0 * np.cos(3 * phi)], axis=1)
     rotation = _frames_from_axes(forward, np.broadcast_to([0.0, 0.0, 1.0], forward.shape))
-    truth = se3.from_rotation_translation(rotation, position)  # rigid: scale 1 (a Sim(3) matrix as it is)
+    rng = np.random.default_rng(seed)
+    drift = np.concatenate([[0.0], np.cumsum(rng.normal(scale=noise.odometry_scale_sigma, size=L * N - 1))])
+    truth = se3.from_rotation_translation(rotation * np.exp(-drift)[:, None, None], position)  # [R / c, p]
     lap_start = np.arange(L) * N
     candidates = _ring_neighbours(lap_start[:-1], lap_start[1:], N)
-    rng = np.random.default_rng(seed)
     params = dict(shape="monocular", laps=L, nodes_per_lap=N, radius=radius, noise=noise, seed=seed)
-    return _build(f"monocular_{L}x{N}", truth, candidates, noise, rng, params, group=SIM3_G2O)
+    no_drift_noise = replace(noise, odometry_scale_sigma=1e-9)  # the drift is in the truth; odometry then drops scale
+    dataset = _build(f"monocular_{L}x{N}", truth, candidates, no_drift_noise, rng, params, group=SIM3_G2O, unit_scale_odometry=True)
+    information = dataset.graph.information.copy()
+    information[dataset.odometry, 6, 6] = _information(1.0, 1.0, SIM3_G2O, noise.odometry_scale_sigma)[6, 6]
+    return replace(dataset, graph=replace(dataset.graph, information=information))
 
 
 SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage, "manhattan": manhattan, "monocular": monocular}
