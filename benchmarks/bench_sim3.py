@@ -10,7 +10,9 @@ every round, so that a slow spell of the shared machine hits both):
 
 * **posegraph**, end to end: ``read_g2o`` → chordal start → LM → ``write_g2o``;
 * **g2o**: ``load`` → ``initialize_optimization`` → ``optimize(200)`` (LM; g2o stops by itself when
-  no step helps, after ~20 iterations here) → ``save``, from the file's poses (g2o has no other start);
+  no step helps) → ``save``, from the file's poses (g2o has no other start);
+* **g2o LM alone from posegraph's chordal start** (built in g2opy, untimed; ``initialize_optimization`` +
+  ``optimize`` timed), beside posegraph's LM alone from the same start: the optimisers without the starts;
 * **gtsam**: the factor graph built from posegraph's reading (gtsam's ``readG2o`` has no Sim(3)
   tags) → LM from posegraph's chordal start (gtsam has no Sim(3) initialiser), tolerances 1e-10.
 
@@ -49,15 +51,20 @@ def make_files(folder: Path, size: int) -> dict:
 
 def run_posegraph(path: Path, out: Path) -> dict:
     """read → chordal → LM → write, timed; χ² as posegraph reports it (g2o's EdgeSim3 error)."""
+    from posegraph.init import initialize
     from posegraph.io.g2o import read_g2o, write_g2o
     from posegraph.solve import SolverParams, optimize
 
     start = time.perf_counter()
     graph = read_g2o(path)
-    result = optimize(graph, initial="chordal", params=SolverParams(method="lm"))
+    initial = initialize(graph, "chordal")
+    before_lm = time.perf_counter()
+    result = optimize(graph, initial=initial, params=SolverParams(method="lm"))
+    lm_seconds = time.perf_counter() - before_lm
     write_g2o(out, graph, result.poses)
     seconds = time.perf_counter() - start
-    return {"seconds": seconds, "chi2": 2.0 * result.final_cost, "iterations": result.iterations, "poses": result.poses}
+    return {"seconds": seconds, "lm_seconds": lm_seconds, "chi2": 2.0 * result.final_cost, "iterations": result.iterations,
+            "poses": result.poses, "start": initial}  # fmt: skip
 
 
 def g2o_optimizer():
@@ -86,6 +93,20 @@ def run_g2o(path: Path, out: Path, iterations: int = 200) -> dict:
     done = optimizer.optimize(iterations)
     optimizer.save(str(out))
     seconds = time.perf_counter() - start
+    optimizer.compute_active_errors()
+    return {"seconds": seconds, "chi2": optimizer.active_chi2(), "iterations": done}
+
+
+def run_g2o_from(path: Path, start: np.ndarray, iterations: int = 200) -> dict:
+    """g2o's LM alone (``initialize_optimization`` + ``optimize``, timed) from posegraph's chordal start."""
+    from datasets.g2opy_sim3 import g2opy_optimizer
+    from posegraph.io.g2o import read_g2o
+
+    optimizer = g2opy_optimizer(read_g2o(path), start)
+    begin = time.perf_counter()
+    optimizer.initialize_optimization()
+    done = optimizer.optimize(iterations)
+    seconds = time.perf_counter() - begin
     optimizer.compute_active_errors()
     return {"seconds": seconds, "chi2": optimizer.active_chi2(), "iterations": done}
 
@@ -126,11 +147,13 @@ def exact_cost(path: Path, poses: np.ndarray) -> float:
 
 def timed_rounds(files: dict, folder: Path, rounds: int) -> dict:
     """Warm-up, then ``rounds`` alternating rounds of the three tools; every run kept."""
-    runs = {"posegraph": [], "g2o": [], "gtsam": []}
+    runs = {"posegraph": [], "g2o": [], "gtsam": [], "g2o_lm_from_chordal": []}
+    chordal = run_posegraph(files["current"], folder / "posegraph_out.g2o")["start"]
     tools = {
         "posegraph": lambda: run_posegraph(files["current"], folder / "posegraph_out.g2o"),
         "g2o": lambda: run_g2o(files["current"], folder / "g2o_out.g2o"),
         "gtsam": lambda: run_gtsam(files["current"]),
+        "g2o_lm_from_chordal": lambda: run_g2o_from(files["current"], chordal),
     }
     for name in tools:  # warm-up: imports, caches
         tools[name]()
@@ -168,8 +191,12 @@ def summary(runs: dict) -> dict:
         seconds = [run["seconds"] for run in values]
         out[name] = {"median_seconds": statistics.median(seconds), "seconds": seconds,
                      "iterations": values[-1]["iterations"]}  # fmt: skip
+        if "chi2" in values[-1]:
+            out[name]["chi2"] = values[-1]["chi2"]
+    out["posegraph"]["median_lm_seconds"] = statistics.median(run["lm_seconds"] for run in runs["posegraph"])
     out["ratio_posegraph_to_g2o"] = out["posegraph"]["median_seconds"] / out["g2o"]["median_seconds"]
     out["ratio_posegraph_to_gtsam"] = out["posegraph"]["median_seconds"] / out["gtsam"]["median_seconds"]
+    out["ratio_lm_alone_to_g2o_lm_from_chordal"] = out["posegraph"]["median_lm_seconds"] / out["g2o_lm_from_chordal"]["median_seconds"]
     return out
 
 

@@ -225,6 +225,14 @@ def _information(rotation_sigma: float, translation_sigma: float, group: LieGrou
     return np.diag([float(f"{value:.12g}") for value in diagonal])
 
 
+def _noise_arguments(noise: NoiseParams, group: LieGroup) -> tuple[tuple, tuple]:
+    """The arguments of :func:`_sigmas` / :func:`_information` for odometry edges and for loop closures."""
+    return (
+        (noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group, noise.odometry_scale_sigma),
+        (noise.loop_rotation_sigma, noise.loop_translation_sigma, group, noise.loop_scale_sigma),
+    )
+
+
 def _build(
     name: str,
     truth: np.ndarray,
@@ -233,12 +241,8 @@ def _build(
     rng: np.random.Generator,
     parameters: dict,
     group: LieGroup = SE3,
-    unit_scale_odometry: bool = False,
 ) -> SyntheticDataset:
-    """Noisy graph of ``group`` from ground truth ``(n, k, k)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer).
-
-    ``unit_scale_odometry`` (Sim(3)): the odometry edges measure no scale change (a monocular
-    tracker cannot), their rotation blocks divided by their scale after the noise."""
+    """Noisy graph of ``group`` from ground truth ``(n, k, k)`` and candidate loop-closure pairs ``(L, 2)`` (older, newer)."""
     n = len(truth)
     if n < 2:
         raise ValueError(f"{name}: a pose graph needs at least 2 poses, got {n}")
@@ -276,17 +280,13 @@ def _build(
 
     # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in the tangent order.
     d = group.dim
-    odometry = (noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group, noise.odometry_scale_sigma)
-    loop = (noise.loop_rotation_sigma, noise.loop_translation_sigma, group, noise.loop_scale_sigma)
+    odometry, loop = _noise_arguments(noise, group)
     odometry_sigmas, loop_sigmas = _sigmas(*odometry), _sigmas(*loop)
     sigmas = np.where(is_odometry[:, None], odometry_sigmas, loop_sigmas)
     delta = rng.standard_normal((m, d)) * sigmas
     if noise.noiseless:
         delta[:] = 0.0
     measurements = exact @ group.exp(delta)
-    if unit_scale_odometry:
-        block = measurements[: n - 1, :3, :3]
-        block /= np.cbrt(np.linalg.det(block))[:, None, None]
 
     information = np.empty((m, d, d))
     information[is_odometry] = _information(*odometry)
@@ -666,10 +666,21 @@ def monocular(
     candidates = _ring_neighbours(lap_start[:-1], lap_start[1:], N)
     params = dict(shape="monocular", laps=L, nodes_per_lap=N, radius=radius, noise=noise, seed=seed)
     no_drift_noise = replace(noise, odometry_scale_sigma=1e-9)  # the drift is in the truth; odometry then drops scale
-    dataset = _build(f"monocular_{L}x{N}", truth, candidates, no_drift_noise, rng, params, group=SIM3_G2O, unit_scale_odometry=True)
-    information = dataset.graph.information.copy()
-    information[dataset.odometry, 6, 6] = _information(1.0, 1.0, SIM3_G2O, noise.odometry_scale_sigma)[6, 6]
-    return replace(dataset, graph=replace(dataset.graph, information=information))
+    dataset = _build(f"monocular_{L}x{N}", truth, candidates, no_drift_noise, rng, params, group=SIM3_G2O)
+    return _odometry_without_scale(dataset, noise.odometry_scale_sigma)
+
+
+def _odometry_without_scale(dataset: SyntheticDataset, drift_sigma: float) -> SyntheticDataset:
+    """A monocular tracker's odometry: scale 1 on every odometry edge (its rotation block divided by its
+    scale), ``Ω_λλ = drift_sigma⁻²``, and the start composed from those edges again."""
+    graph, odometry = dataset.graph, dataset.odometry
+    measurements, information = graph.measurements.copy(), graph.information.copy()
+    block = measurements[odometry, :3, :3]
+    measurements[odometry, :3, :3] = block / np.cbrt(np.linalg.det(block))[:, None, None]
+    information[odometry, 6, 6] = _information(1.0, 1.0, graph.group, drift_sigma)[6, 6]
+    chain = np.flatnonzero(odometry)[np.argsort(graph.edge_from[odometry])]  # edges k → k+1 in k order
+    start = _compose_chain(dataset.ground_truth[0], measurements[chain])
+    return replace(dataset, graph=replace(graph, poses=start, measurements=measurements, information=information))
 
 
 SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage, "manhattan": manhattan, "monocular": monocular}
