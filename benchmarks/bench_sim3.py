@@ -67,27 +67,12 @@ def run_posegraph(path: Path, out: Path) -> dict:
             "poses": result.poses, "start": initial}  # fmt: skip
 
 
-def g2o_optimizer():
-    import g2opy as g2o
-
-    optimizer = g2o.SparseOptimizer()
-    optimizer.set_algorithm(g2o.OptimizationAlgorithmLevenberg(g2o.BlockSolverSim3(g2o.LinearSolverEigenSim3())))
-    return optimizer
-
-
-def g2o_chi2(path: Path) -> float:
-    """χ² g2o computes for a file as it reads it."""
-    optimizer = g2o_optimizer()
-    optimizer.load(str(path))
-    optimizer.initialize_optimization()
-    optimizer.compute_active_errors()
-    return optimizer.active_chi2()
-
-
 def run_g2o(path: Path, out: Path, iterations: int = 200) -> dict:
     """load → LM (until g2o stops) → save, timed; g2o's χ² at its result."""
+    from datasets.g2opy_sim3 import lm_optimizer
+
     start = time.perf_counter()
-    optimizer = g2o_optimizer()
+    optimizer = lm_optimizer()
     optimizer.load(str(path))
     optimizer.initialize_optimization()
     done = optimizer.optimize(iterations)
@@ -166,6 +151,7 @@ def timed_rounds(files: dict, folder: Path, rounds: int) -> dict:
 
 def checks(files: dict, folder: Path, runs: dict) -> dict:
     """The acceptance checks of issue #26 on the last runs' outputs."""
+    from datasets.g2opy_sim3 import g2o_chi2
     from posegraph.io.g2o import read_g2o
 
     ours, theirs = runs["posegraph"][-1], runs["g2o"][-1]

@@ -21,7 +21,7 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.lie import sim3
 
-__all__ = ["g2o_similarity", "g2opy_optimizer", "write_with_g2opy", "write_classic", "classic_path", "main"]
+__all__ = ["g2o_similarity", "lm_optimizer", "g2opy_optimizer", "g2o_chi2", "write_with_g2opy", "write_classic", "classic_path", "main"]
 
 
 def g2o_similarity(g2o, matrix: np.ndarray):
@@ -30,14 +30,35 @@ def g2o_similarity(g2o, matrix: np.ndarray):
     return g2o.Sim3(matrix[:3, :3] / s, np.ascontiguousarray(matrix[:3, 3]), s)
 
 
+def lm_optimizer():
+    """An empty ``g2o.SparseOptimizer`` with LM over ``BlockSolverSim3`` and Eigen's sparse Cholesky."""
+    import g2opy as g2o
+
+    optimizer = g2o.SparseOptimizer()
+    optimizer.set_algorithm(g2o.OptimizationAlgorithmLevenberg(g2o.BlockSolverSim3(g2o.LinearSolverEigenSim3())))
+    return optimizer
+
+
+def g2o_chi2(path: str | Path, iterations: int = 0) -> float:
+    """χ² that g2o computes for the file at ``path`` as it reads it (``load``, ``compute_active_errors``,
+    ``active_chi2``), after ``iterations`` of its LM if asked."""
+    optimizer = lm_optimizer()
+    if not optimizer.load(str(path)):
+        raise OSError(f"g2opy could not read {path}")
+    optimizer.initialize_optimization()
+    if iterations:
+        optimizer.optimize(iterations)
+    optimizer.compute_active_errors()
+    return optimizer.active_chi2()
+
+
 def g2opy_optimizer(graph: PoseGraph, poses: np.ndarray | None = None):
     """A ``g2o.SparseOptimizer`` (LM over ``BlockSolverSim3`` with Eigen's sparse Cholesky) holding ``graph``
     at ``poses`` (default its own): estimates ``S_i = X_i⁻¹``, measurements ``S_ji = Z⁻¹``, ``FIX`` vertices fixed."""
     import g2opy as g2o
 
     poses = graph.poses if poses is None else poses
-    optimizer = g2o.SparseOptimizer()
-    optimizer.set_algorithm(g2o.OptimizationAlgorithmLevenberg(g2o.BlockSolverSim3(g2o.LinearSolverEigenSim3())))
+    optimizer = lm_optimizer()
     for vertex_id, pose, fixed in zip(graph.ids.tolist(), sim3.inverse(poses), graph.fixed.tolist()):
         vertex = g2o.VertexSim3Expmap()
         vertex.set_id(vertex_id)
