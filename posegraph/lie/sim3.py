@@ -340,8 +340,17 @@ def ad(xi) -> np.ndarray:
 
 # --- Jacobians of Exp and Log ----------------------------------------------------------------
 
-_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(QUADRATURE_NODES)
-_TAU, _TAU_WEIGHTS = 0.5 * (_NODES + 1.0), 0.5 * _WEIGHTS  # on [0, 1]
+def _gauss_legendre(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights of the ``count``-point Gauss–Legendre rule on [0, 1] (Golub–Welsch: the
+    eigenvalues of the Jacobi matrix of the Legendre recurrence, ``β_k = k/√(4k² − 1)``, and twice
+    the squared first components of its eigenvectors), without importing ``numpy.polynomial``."""
+    k = np.arange(1, count)
+    beta = k / np.sqrt(4.0 * k * k - 1.0)
+    nodes, vectors = np.linalg.eigh(np.diag(beta, 1) + np.diag(beta, -1))
+    return 0.5 * (nodes + 1.0), vectors[0] ** 2  # weights 2 v₀², halved with the interval
+
+
+_TAU, _TAU_WEIGHTS = _gauss_legendre(QUADRATURE_NODES)  # on [0, 1]
 
 
 def _right_jacobian_blocks(x: np.ndarray):
