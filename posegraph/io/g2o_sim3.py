@@ -201,6 +201,8 @@ def _values(records, lines, variant: str, path: str, repair_information: bool):
         if variant == CURRENT:
             errors += [_check_scales(records[tag]["s"], numbers, tag, path), _check_quaternions(records[tag]["q"], numbers, tag, path)]
             quaternions.append(records[tag]["q"])
+        else:
+            errors.append(_check_log_scales(records[tag]["xi"][:, 6], numbers, tag, path))
     raise_first(errors)
     for tag in (VERTEX_SIM3_TAG, EDGE_SIM3_TAG):
         matrices[tag] = _camera_to_world(records[tag], variant)
@@ -219,6 +221,20 @@ def _check_scales(s: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2
     if bad.size == 0:
         return None
     return G2oFormatError(f"{tag} scale is {float(s[bad[0]])!r}; a similarity's scale must be > 0", path, int(numbers[bad[0]]))
+
+
+MAX_LOG_SCALE = 700.0
+"""A classic line's σ beyond ±this makes ``e^σ`` overflow (or vanish) in double precision: refused."""
+
+
+def _check_log_scales(sigma: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2oFormatError | None:
+    bad = np.flatnonzero(np.abs(sigma) > MAX_LOG_SCALE)  # NaN compares False: reported as non-finite
+    if bad.size == 0:
+        return None
+    return G2oFormatError(
+        f"{tag} log-scale σ is {float(sigma[bad[0]])!r}: its scale e^σ is not a finite positive number", path,
+        int(numbers[bad[0]]),
+    )  # fmt: skip
 
 
 def _check_quaternions(q: np.ndarray, numbers: np.ndarray, tag: str, path: str) -> G2oFormatError | None:

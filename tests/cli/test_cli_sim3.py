@@ -75,3 +75,15 @@ def test_info_names_the_group(files):
     run = run_cli("info", files / "mono.g2o")
     assert run.returncode == 0, run.stderr
     assert "(Sim(3) poses: rotation, translation, scale)" in run.stdout and "information, 7x7" in run.stdout
+
+
+def test_verify_jacobians_checks_the_files_edges_and_bad_input_is_one_line(files, tmp_path):
+    run = run_cli("verify-jacobians", files / "mono.g2o")
+    assert run.returncode == 0, run.stdout
+    assert "gtsam BetweenFactorSimilarity3  edges of mono.g2o" in run.stdout
+    bad = tmp_path / "bad.g2o"
+    bad.write_text("VERTEX_SIM3:EXPMAP 0 0 0 0 1 0 0 0 1\nVERTEX_SIM3:EXPMAP 1 0 0 0 1 1 0 0 -1\n")
+    run = run_cli("optimize", bad, "-o", tmp_path / "out.g2o")
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
+    assert f"{bad}:2: VERTEX_SIM3:EXPMAP scale is -1.0" in run.stderr
+    assert not (tmp_path / "out.g2o").exists()

@@ -167,6 +167,8 @@ EDGE_01 = "EDGE_SIM3:EXPMAP 0 1 0 0 0 1 -1 0 0 0.6667 " + INFO_UPPER
         ([VERTEX_0, VERTEX_1, EDGE_01 + " 3"], 3, "needs 38 fields after the tag (current g2o"),
         ([VERTEX_0, "VERTEX_SIM3:EXPMAP 1 0 0 0 0 0 0 0 1 1 0 0", EDGE_01], 2, "line in the classic variant (12 fields)"),
         ([VERTEX_0, VERTEX_1, EDGE_01, "VERTEX_SE3:QUAT 7 0 0 0 0 0 0 1"], 4, "VERTEX_SE3:QUAT in a file of Sim(3) lines"),
+        (["VERTEX_SIM3:EXPMAP 0 0 0 0 0 0 0 0 1 1 0 0", "VERTEX_SIM3:EXPMAP 1 0 0 0 1 0 0 800 1 1 0 0"], 2,
+         "log-scale σ is 800.0: its scale e^σ is not a finite positive number"),
     ],
 )
 def test_bad_input_names_file_line_and_reason(tmp_path, lines, line, reason):
