@@ -1,4 +1,5 @@
-"""Synthetic pose graphs with ground truth: sphere, torus, 3D grid, parking garage (3D); a Manhattan world (2D).
+"""Synthetic pose graphs with ground truth: sphere, torus, 3D grid, parking garage (3D); a Manhattan world (2D);
+a monocular camera's Sim(3) graph whose odometry scale drifts (:func:`monocular`).
 
 Every generator builds ground-truth poses ``X_k`` (world-from-body, ``(n, 4, 4)``; ``(n, 3, 3)``
 SE(2) matrices for the planar ``manhattan``, whose noise is in ``[v_x, v_y, ω]`` order), the odometry
@@ -40,6 +41,7 @@ Command line (writes ``OUT``, ``OUT``'s ``_groundtruth.g2o`` sibling and, with o
     python -m datasets.synthetic sphere --size 2500 -o sphere.g2o
     python -m datasets.synthetic grid --size 8000 --loop-density 0.5 --outliers 0.1 -o grid.g2o
     python -m datasets.synthetic inject sphere2500.g2o --fraction 0.2 --seed 1 -o sphere2500_outliers.g2o
+    python -m datasets.synthetic monocular --size 2500 -o mono.g2o   # Sim(3): VERTEX_SIM3:EXPMAP lines
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ import numpy as np
 
 from posegraph.graph import PoseGraph
 from posegraph.lie import se2, se3, so2, so3
-from posegraph.lie.group import SE2, SE3, LieGroup
+from posegraph.lie.group import SE2, SE3, SIM3_G2O, LieGroup
 
 __all__ = [
     "NoiseParams",
@@ -63,6 +65,7 @@ __all__ = [
     "grid",
     "garage",
     "manhattan",
+    "monocular",
     "generate",
     "shape_arguments",
     "SHAPES",
@@ -98,6 +101,10 @@ class NoiseParams:
     """Fraction in [0, 1] of the shape's candidate loop closures that are kept."""
     outlier_fraction: float = 0.0
     """Fraction in [0, 1) of all loop closures (inliers + outliers) that are outliers."""
+    odometry_scale_sigma: float = 0.01
+    """σ of the log-scale λ of a Sim(3) odometry edge (:func:`monocular`): the scale drift per step."""
+    loop_scale_sigma: float = 0.001
+    """σ of the log-scale of a Sim(3) loop closure, which carries the true relative scale."""
     noiseless: bool = False
     """If True the measurements are the exact relative poses (the information still states the
     sigmas above): the ground truth is then an exact minimum with cost 0 (outliers excepted)."""
@@ -108,6 +115,8 @@ class NoiseParams:
             "odometry_translation_sigma",
             "loop_rotation_sigma",
             "loop_translation_sigma",
+            "odometry_scale_sigma",
+            "loop_scale_sigma",
         ):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -199,19 +208,29 @@ def _compose_chain(first: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return np.concatenate([first[None], first[None] @ prefix], axis=0)
 
 
-def _sigmas(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3) -> np.ndarray:
-    """``(d,)`` standard deviations in the group's tangent order: ``σ_rot`` at its rotation axes."""
+def _sigmas(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3, scale_sigma: float = 1.0) -> np.ndarray:
+    """``(d,)`` standard deviations in the group's tangent order: ``σ_rot`` at its rotation axes,
+    ``scale_sigma`` at its log-scale axis (Sim(3))."""
     sigmas = np.full(group.dim, float(translation_sigma))
     sigmas[list(group.rotation_axes)] = rotation_sigma
+    sigmas[list(group.scale_axes)] = scale_sigma
     return sigmas
 
 
-def _information(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3) -> np.ndarray:
+def _information(rotation_sigma: float, translation_sigma: float, group: LieGroup = SE3, scale_sigma: float = 1.0) -> np.ndarray:
     """``diag(σ⁻²)`` of :func:`_sigmas` (``diag(σ_rot⁻² I₃, σ_trans⁻² I₃)`` in 3D) rounded to 12
     significant digits, so that files read ``400`` rather than ``399.99999999999994`` for σ = 0.05
     (a 1e-16 relative change)."""
-    diagonal = _sigmas(rotation_sigma, translation_sigma, group) ** -2
+    diagonal = _sigmas(rotation_sigma, translation_sigma, group, scale_sigma) ** -2
     return np.diag([float(f"{value:.12g}") for value in diagonal])
+
+
+def _noise_arguments(noise: NoiseParams, group: LieGroup) -> tuple[tuple, tuple]:
+    """The arguments of :func:`_sigmas` / :func:`_information` for odometry edges and for loop closures."""
+    return (
+        (noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group, noise.odometry_scale_sigma),
+        (noise.loop_rotation_sigma, noise.loop_translation_sigma, group, noise.loop_scale_sigma),
+    )
 
 
 def _build(
@@ -261,8 +280,8 @@ def _build(
 
     # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in the tangent order.
     d = group.dim
-    odometry_sigmas = _sigmas(noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group)
-    loop_sigmas = _sigmas(noise.loop_rotation_sigma, noise.loop_translation_sigma, group)
+    odometry, loop = _noise_arguments(noise, group)
+    odometry_sigmas, loop_sigmas = _sigmas(*odometry), _sigmas(*loop)
     sigmas = np.where(is_odometry[:, None], odometry_sigmas, loop_sigmas)
     delta = rng.standard_normal((m, d)) * sigmas
     if noise.noiseless:
@@ -270,8 +289,8 @@ def _build(
     measurements = exact @ group.exp(delta)
 
     information = np.empty((m, d, d))
-    information[is_odometry] = _information(noise.odometry_rotation_sigma, noise.odometry_translation_sigma, group)
-    information[~is_odometry] = _information(noise.loop_rotation_sigma, noise.loop_translation_sigma, group)
+    information[is_odometry] = _information(*odometry)
+    information[~is_odometry] = _information(*loop)
 
     # 5. Initial values: noisy odometry composed from the true first pose.
     initial = _compose_chain(truth[0], measurements[: n - 1])
@@ -607,7 +626,64 @@ def manhattan(
     return _build(f"manhattan_{n}", truth, candidates, noise, rng, params, group=SE2)
 
 
-SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage, "manhattan": manhattan}
+def monocular(
+    laps: int = 10,
+    nodes_per_lap: int = 250,
+    radius: float = 50.0,
+    *,
+    noise: NoiseParams = NoiseParams(odometry_translation_sigma=0.02, loop_translation_sigma=0.02),
+    seed: int = 0,
+) -> SyntheticDataset:
+    """A monocular camera's keyframes driving ``laps`` laps of a wavy loop: a Sim(3) graph with scale drift.
+
+    As in monocular SLAM's essential graph (Strasdat et al., "Scale drift-aware large scale
+    monocular SLAM", RSS 2010). The map's scale ``c_k`` random-walks, ``log c_{k+1} − log c_k ~
+    N(0, odometry_scale_sigma²)``; keyframe ``k``'s true Sim(3) pose is ``[R_k / c_k, p_k]`` (true
+    rotation and position, the map's local scale), so a relative pose measures a step in the
+    local scale, ``c_k R_kᵀ (p_{k+1} − p_k)``. The odometry edges ``k → k+1`` measure no scale change
+    (scale 1: the drift is their log-scale error, hence ``Ω_λλ = odometry_scale_sigma⁻²``), so the
+    composed start is the drifted trajectory a monocular tracker reports; the loop closures, tying
+    each keyframe to the three nearest of the previous lap, carry the true relative scale
+    ``c_i / c_j`` (``σ = loop_scale_sigma``), as a Sim(3) loop detector measures it. Lap ``l`` node ``k``
+    is at angle ``φ = 2πk/N`` on a circle of ``radius`` squashed to an ellipse (0.6 in y), height
+    ``2 sin 3φ``, laps 0.5 m apart, facing along the path. The graph's group is
+    :data:`~posegraph.lie.group.SIM3_G2O` (g2o's ``EDGE_SIM3`` cost); it is written as
+    ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines. ``ground_truth`` is ``[R_k / c_k, p_k]``: with
+    each pose's scale applied (``eval``, ``export``), the true trajectory.
+    """
+    L = _check_count("laps", laps, 1)
+    N = _check_count("nodes_per_lap", nodes_per_lap, 4)
+    k = np.arange(L * N)
+    phi = 2 * np.pi * (k % N) / N
+    ring = radius + 0.5 * (k // N)
+    position = np.stack([ring * np.cos(phi), 0.6 * ring * np.sin(phi), 2.0 * np.sin(3 * phi)], axis=1)
+    forward = np.stack([-ring * np.sin(phi), 0.6 * ring * np.cos(phi), 6.0 * np.cos(3 * phi)], axis=1)
+    rotation = _frames_from_axes(forward, np.broadcast_to([0.0, 0.0, 1.0], forward.shape))
+    rng = np.random.default_rng(seed)
+    drift = np.concatenate([[0.0], np.cumsum(rng.normal(scale=noise.odometry_scale_sigma, size=L * N - 1))])
+    truth = se3.from_rotation_translation(rotation * np.exp(-drift)[:, None, None], position)  # [R / c, p]
+    lap_start = np.arange(L) * N
+    candidates = _ring_neighbours(lap_start[:-1], lap_start[1:], N)
+    params = dict(shape="monocular", laps=L, nodes_per_lap=N, radius=radius, noise=noise, seed=seed)
+    no_drift_noise = replace(noise, odometry_scale_sigma=1e-9)  # the drift is in the truth; odometry then drops scale
+    dataset = _build(f"monocular_{L}x{N}", truth, candidates, no_drift_noise, rng, params, group=SIM3_G2O)
+    return _odometry_without_scale(dataset, noise.odometry_scale_sigma)
+
+
+def _odometry_without_scale(dataset: SyntheticDataset, drift_sigma: float) -> SyntheticDataset:
+    """A monocular tracker's odometry: scale 1 on every odometry edge (its rotation block divided by its
+    scale), ``Ω_λλ = drift_sigma⁻²``, and the start composed from those edges again."""
+    graph, odometry = dataset.graph, dataset.odometry
+    measurements, information = graph.measurements.copy(), graph.information.copy()
+    block = measurements[odometry, :3, :3]
+    measurements[odometry, :3, :3] = block / np.cbrt(np.linalg.det(block))[:, None, None]
+    information[odometry, 6, 6] = _information(1.0, 1.0, graph.group, drift_sigma)[6, 6]
+    chain = np.flatnonzero(odometry)[np.argsort(graph.edge_from[odometry])]  # edges k → k+1 in k order
+    start = _compose_chain(dataset.ground_truth[0], measurements[chain])
+    return replace(dataset, graph=replace(graph, poses=start, measurements=measurements, information=information))
+
+
+SHAPES = {"sphere": sphere, "torus": torus, "grid": grid, "garage": garage, "manhattan": manhattan, "monocular": monocular}
 
 
 def shape_arguments(shape: str, size: int) -> dict:
@@ -624,6 +700,9 @@ def shape_arguments(shape: str, size: int) -> dict:
         return dict(nx=side, ny=side, nz=max(1, round(size / side**2)))
     if shape == "manhattan":
         return dict(steps=size)
+    if shape == "monocular":
+        laps = max(1, round((size / 25) ** 0.5))  # 10 laps of 250 for 2,500
+        return dict(laps=laps, nodes_per_lap=max(4, round(size / laps)))
     if shape == "garage":
         floors, laps, ramp = 4, 2, 12
         return dict(floors=floors, laps_per_floor=laps, ramp_nodes=ramp, nodes_per_lap=max(4, round((size - (floors - 1) * ramp) / (floors * laps))))

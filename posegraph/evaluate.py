@@ -7,7 +7,9 @@ the evaluation of RGB-D SLAM systems" (IROS 2012):
 * **ATE** — the estimated positions ``p_k`` are first aligned to the reference positions ``g_k``
   by the rigid transform ``(R, t)`` minimising ``Σ_k ‖R p_k + t − g_k‖²`` (Umeyama 1991 /
   Horn 1987, rotation and translation, no scale; in 2D the planar closed form, see
-  :func:`align_rigid`). The error of pose ``k`` is
+  :func:`align_rigid`). For a Sim(3) trajectory (a monocular system's, whose poses carry a scale)
+  the alignment is a similarity ``(c, R, t)`` (Umeyama with scale, evo's ``-as``), each pose's own
+  scale applied first (:func:`posegraph.lie.group.embed_in_se3`). The error of pose ``k`` is
   ``‖R p_k + t − g_k‖`` (``ate_translation``, in the file's length unit) and the angle of
   ``G_kᵀ · R · P_k`` (``ate_rotation``, degrees), where ``P_k``, ``G_k`` are the rotations.
 * **RPE** — for consecutive poses ``k, k+1`` (in id order) the relative motions
@@ -47,6 +49,7 @@ __all__ = [
     "error_stats",
     "rotation_angle",
     "align_rigid",
+    "is_similarity_trajectory",
     "match_by_id",
     "absolute_trajectory_error",
     "relative_pose_error",
@@ -111,7 +114,7 @@ def rotation_angle(rotations: np.ndarray) -> np.ndarray:
     return np.arctan2(sin_theta, cos_theta)
 
 
-def align_rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def align_rigid(source: np.ndarray, target: np.ndarray, *, with_scale: bool = False):
     """Rigid transform ``(R, t)`` minimising ``Σ_k ‖R·source_k + t − target_k‖²`` (no scale).
 
     ``source``, ``target``: ``(k, d)`` points, ``d = 3`` or ``2``. With centred points ``s̃, g̃``
@@ -126,7 +129,9 @@ def align_rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.
       no reliance on the determinant fix to pin the free third axis of the rank-2 ``Σ`` that
       planar points embedded in 3D give Umeyama (tests check both agree on such points).
 
-    Returns ``R`` ``(d, d)`` and ``t`` ``(d,)``.
+    Returns ``R`` ``(d, d)`` and ``t`` ``(d,)``; with ``with_scale``, ``(c, R, t)`` minimising
+    ``Σ_k ‖c R·source_k + t − target_k‖²``: the same ``R`` and Umeyama's ``c = tr(Rᵀ Σ) / Σ_k ‖s̃_k‖²``,
+    ``t = ḡ − c R s̄`` (evo's ``-as``).
     """
     source = np.asarray(source, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
@@ -135,13 +140,24 @@ def align_rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.
     cross = (target - target_mean).T @ (source - source_mean)
     if cross.shape == (2, 2):
         R = so2.project(cross)
+    else:
+        U, _, Vt = np.linalg.svd(cross)
+        d = np.ones(3)
+        d[2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
+        R = (U * d) @ Vt
+    if not with_scale:
         return R, target_mean - R @ source_mean
-    U, _, Vt = np.linalg.svd(cross)
-    d = np.ones(3)
-    d[2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
-    R = (U * d) @ Vt
-    t = target_mean - R @ source_mean
-    return R, t
+    spread = float(np.sum((source - source_mean) ** 2))
+    c = float(np.sum(R * cross)) / spread if spread > 0.0 else 1.0
+    return c, R, target_mean - c * R @ source_mean
+
+
+def is_similarity_trajectory(poses: np.ndarray) -> bool:
+    """Whether ``(n, 4, 4)`` poses carry scales (a Sim(3) graph's): some ``|det(s R)^{1/3} − 1| > 1e-9``."""
+    poses = np.asarray(poses)
+    if poses.shape[-1] != 4 or not poses.size:
+        return False
+    return bool(np.any(np.abs(np.cbrt(np.linalg.det(poses[..., :3, :3])) - 1.0) > 1e-9))
 
 
 def match_by_id(
@@ -160,28 +176,40 @@ def match_by_id(
 
 
 def absolute_trajectory_error(
-    estimate: np.ndarray, reference: np.ndarray, *, align: bool = True
+    estimate: np.ndarray, reference: np.ndarray, *, align: bool = True, with_scale: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-pose ATE after a rigid alignment of ``estimate`` onto ``reference``.
+    """Per-pose ATE after a rigid (``with_scale``: similarity) alignment of ``estimate`` onto ``reference``.
 
     ``estimate``, ``reference``: matched poses ``(k, d+1, d+1)``. Returns ``(translation_errors
     (k,), rotation_errors_deg (k,), alignment (d+1, d+1))`` where ``alignment`` is the SE(d)
-    matrix ``[R t; 0 1]`` applied to the estimate (identity when ``align`` is False).
+    matrix ``[R t; 0 1]`` (``[c R t; 0 1]`` with scale) applied to the estimate (identity when
+    ``align`` is False).
     """
     estimate = np.asarray(estimate, dtype=np.float64)
     reference = np.asarray(reference, dtype=np.float64)
     d = estimate.shape[-1] - 1
     alignment = np.eye(d + 1)
     if align:
-        R, t = align_rigid(estimate[:, :d, d], reference[:, :d, d])
-        alignment[:d, :d] = R
+        c, R, t = align_rigid(estimate[:, :d, d], reference[:, :d, d], with_scale=True) if with_scale else (
+            1.0, *align_rigid(estimate[:, :d, d], reference[:, :d, d]))  # fmt: skip
+        alignment[:d, :d] = c * R
         alignment[:d, d] = t
-    aligned = alignment @ estimate
+    aligned = _aligned(alignment, estimate)
     translation = np.linalg.norm(aligned[:, :d, d] - reference[:, :d, d], axis=-1)
     rotation = np.degrees(
         rotation_angle(np.swapaxes(reference[:, :d, :d], -1, -2) @ aligned[:, :d, :d])
     )
     return translation, rotation, alignment
+
+
+def _aligned(alignment: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """``alignment @ estimate`` with the alignment's scale ``c`` taken out of the rotation blocks."""
+    d = estimate.shape[-1] - 1
+    aligned = alignment @ estimate
+    c = abs(np.linalg.det(alignment[:d, :d])) ** (1.0 / d)
+    if c != 1.0:
+        aligned[:, :d, :d] /= c
+    return aligned
 
 
 def _inverse(poses: np.ndarray) -> np.ndarray:
@@ -228,7 +256,7 @@ class TrajectoryErrors:
     rpe_rotation: ErrorStats
     alignment: np.ndarray
     """``(4, 4)`` SE(3) or, for two 2D trajectories, ``(3, 3)`` SE(2) transform applied to the
-    estimate before computing ATE."""
+    estimate before computing ATE; a similarity ``[c R, t; 0, 1]`` for a Sim(3) trajectory."""
 
     def as_dict(self) -> dict:
         return {
@@ -251,12 +279,15 @@ def evaluate(
     *,
     align: bool = True,
     source: str | None = None,
+    with_scale: bool | None = None,
 ) -> TrajectoryErrors:
     """ATE and RPE of an estimated trajectory against a reference, matched by vertex id.
 
     ``*_ids`` ``(n,)`` and ``*_poses`` ``(n, 4, 4)`` or ``(n, 3, 3)``; poses are compared in
     increasing id order. When one trajectory is 2D and the other 3D, the 2D one is embedded at
-    ``z = 0`` (:func:`posegraph.lie.se2.to_se3`). Raises :class:`~posegraph.errors.InputError` (naming ``source``) when fewer than 3 ids are
+    ``z = 0`` (:func:`posegraph.lie.se2.to_se3`). ``with_scale`` (default: when either trajectory carries
+    scales, :func:`is_similarity_trajectory`) aligns by a similarity, each pose's scale applied first, and
+    RPE compares the aligned estimate (so its steps are at the reference's scale, as evo's ``-as``). Raises :class:`~posegraph.errors.InputError` (naming ``source``) when fewer than 3 ids are
     shared, since the alignment is then not unique.
     """
     ids, ei, ri = match_by_id(estimate_ids, reference_ids)
@@ -268,10 +299,12 @@ def evaluate(
         )
     estimate = np.asarray(estimate_poses, dtype=np.float64)[ei]
     reference = np.asarray(reference_poses, dtype=np.float64)[ri]
-    if estimate.shape[-1] != reference.shape[-1]:
-        estimate, reference = embed_in_se3(estimate), embed_in_se3(reference)
-    ate_t, ate_r, alignment = absolute_trajectory_error(estimate, reference, align=align)
-    rpe_t, rpe_r = relative_pose_error(estimate, reference)
+    if with_scale is None:
+        with_scale = is_similarity_trajectory(estimate) or is_similarity_trajectory(reference)
+    if estimate.shape[-1] != reference.shape[-1] or estimate.shape[-1] == 4:
+        estimate, reference = embed_in_se3(estimate), embed_in_se3(reference)  # Sim(3): each pose's scale applied
+    ate_t, ate_r, alignment = absolute_trajectory_error(estimate, reference, align=align, with_scale=with_scale)
+    rpe_t, rpe_r = relative_pose_error(_aligned(alignment, estimate) if with_scale else estimate, reference)
     return TrajectoryErrors(
         num_matched=int(ids.size),
         num_estimate=int(len(estimate_ids)),

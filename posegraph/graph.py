@@ -110,6 +110,9 @@ class PoseGraph:
     """Lines of the file that are not vertices or edges of the graph but belong in its output, each
     ``"TAG rest"``, written back as read: TORO's ``EQUIV`` lines and the vertex and edge lines they
     merged away (:mod:`posegraph.io.g2o_toro`)."""
+    file_format: object | None = field(default=None, repr=False)
+    """What a reader keeps to write the file back as it came (a Sim(3) file's variant and camera numbers:
+    :class:`posegraph.io.g2o_sim3.Sim3Format`); None if nothing."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:

@@ -4,7 +4,10 @@ gtsam (``pip install "posegraph[gtsam]"``) is optional and imported only inside 
 It is the reference this project is checked against: the same factors (``BetweenFactorPose3``
 with a full Gaussian noise model from Ω, as ``gtsam.readG2o`` builds them), the same cost
 ``½ Σ eᵀ Ω e`` (``NonlinearFactorGraph.error``), the same ``[ω; v]`` tangent order; for 2D graphs
-``Pose2``, ``BetweenFactorPose2`` and ``PriorFactorPose2`` (tangent ``[x, y, θ]``).
+``Pose2``, ``BetweenFactorPose2`` and ``PriorFactorPose2`` (tangent ``[x, y, θ]``); for Sim(3) graphs
+``Similarity3``, ``BetweenFactorSimilarity3`` and ``PriorFactorSimilarity3`` (tangent ``[ω; υ; λ]``, the
+same as :mod:`posegraph.lie.sim3`; gtsam's cost is the exact log's, not g2o's first-order one, so a
+graph read from a g2o Sim(3) file is compared as :data:`~posegraph.lie.group.SIM3`).
 
 Gauge. Our solver holds every ``FIX`` vertex and one anchor per free connected component constant
 and adds nothing to the cost (``posegraph.graph.component_anchors``). gtsam needs the gauge fixed
@@ -68,7 +71,31 @@ def _gtsam_pose(gtsam, matrix: np.ndarray):
     return gtsam.Pose3(matrix)
 
 
-def poses_to_values(ids: np.ndarray, poses: np.ndarray):
+def _gtsam_similarity(gtsam, matrix: np.ndarray):
+    """``Similarity3(R, t/s, s)`` of a Sim(3) matrix ``[[s R, t], [0, 1]]`` (gtsam's is ``[[R, t/s], [0, 1/s]]``)."""
+    from posegraph.lie import sim3
+
+    s = float(sim3.scale(matrix))
+    return gtsam.Similarity3(gtsam.Rot3(sim3.rotation(matrix)), matrix[:3, 3] / s, s)
+
+
+def _is_similarity(group) -> bool:
+    return group is not None and bool(group.scale_axes)
+
+
+def _element(gtsam, matrix: np.ndarray, group):
+    """gtsam's element of ``group`` (None: by the matrix's shape) for one matrix."""
+    return _gtsam_similarity(gtsam, matrix) if _is_similarity(group) else _gtsam_pose(gtsam, matrix)
+
+
+def _factor_class(gtsam, graph, kind: str):
+    """``gtsam.<kind>FactorPose3`` / ``…Pose2`` / ``…Similarity3`` for ``graph``'s group (``kind``: Between, Prior)."""
+    if _is_similarity(graph.group):
+        return getattr(gtsam, f"{kind}FactorSimilarity3")
+    return getattr(gtsam, f"{kind}FactorPose2" if _is_planar(graph) else f"{kind}FactorPose3")
+
+
+def poses_to_values(ids: np.ndarray, poses: np.ndarray, group=None):
     """``gtsam.Values`` holding ``Pose3(poses[k])`` (``Pose2`` for SE(2) poses) under key ``ids[k]``.
 
     ``ids`` ``(n,)`` integer vertex ids (used as gtsam keys, as ``readG2o`` does); ``poses`` ``(n, 4, 4)``
@@ -77,15 +104,21 @@ def poses_to_values(ids: np.ndarray, poses: np.ndarray):
     gtsam = require_gtsam()
     values = gtsam.Values()
     for key, pose in zip(np.asarray(ids).tolist(), np.asarray(poses, dtype=np.float64)):
-        values.insert(key, _gtsam_pose(gtsam, pose))
+        values.insert(key, _element(gtsam, pose, group))
     return values
 
 
-def values_to_poses(values, ids: np.ndarray) -> np.ndarray:
-    """Poses ``(n, 4, 4)`` — ``(n, 3, 3)`` when ``values`` holds ``Pose2`` — of ``ids`` read from
-    ``gtsam.Values`` (KeyError if a key is absent)."""
+def values_to_poses(values, ids: np.ndarray, group=None) -> np.ndarray:
+    """Poses ``(n, 4, 4)`` — ``(n, 3, 3)`` when ``values`` holds ``Pose2``, Sim(3) matrices for a Sim(3)
+    ``group`` — of ``ids`` read from ``gtsam.Values`` (KeyError if a key is absent)."""
     gtsam = require_gtsam()
     ids = np.asarray(ids, dtype=np.int64)
+    if _is_similarity(group):  # no extractSimilarity3: one element at a time
+        missing = [key for key in ids.tolist() if not values.exists(key)]
+        if missing:
+            raise KeyError(f"vertex ids not in gtsam values: {missing[:5]}")
+        elements = [values.atSimilarity3(key) for key in ids.tolist()]
+        return np.array([element.scale() * element.matrix() for element in elements]).reshape(-1, 4, 4)
     keys = np.asarray(list(values.keys()), dtype=np.int64)
     # extractPose3 returns one row per Pose3 in key order: R row-major (9), then t (3); extractPose2
     # one row per Pose2: x, y, θ.
@@ -122,7 +155,7 @@ def graph_to_gtsam(graph, *, diagonal: bool = False):
     marginal sigmas ``√diag(Ω⁻¹)``, as gtsam's LAGO requires (it refuses other noise models).
     """
     gtsam = require_gtsam()
-    between = gtsam.BetweenFactorPose2 if _is_planar(graph) else gtsam.BetweenFactorPose3
+    between = _factor_class(gtsam, graph, "Between")
     factors = gtsam.NonlinearFactorGraph()
     ids = graph.ids.tolist()
     if diagonal:
@@ -131,7 +164,7 @@ def graph_to_gtsam(graph, *, diagonal: bool = False):
     else:
         noises = [gtsam.noiseModel.Gaussian.Information(info) for info in graph.information]
     for i, j, Z, noise in zip(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements, noises):
-        factors.add(between(ids[i], ids[j], _gtsam_pose(gtsam, Z), noise))
+        factors.add(between(ids[i], ids[j], _element(gtsam, Z, graph.group), noise))
     if not diagonal:
         factors.push_back(prior_factors(graph))
     return factors
@@ -172,10 +205,10 @@ def gauge_priors(graph, poses: np.ndarray | None = None):
     X = graph.poses if poses is None else poses
     held = np.union1d(np.flatnonzero(graph.fixed), component_anchors(graph))
     noise = gtsam.noiseModel.Isotropic.Sigma(graph.group.dim, ANCHOR_SIGMA)
-    prior = gtsam.PriorFactorPose2 if _is_planar(graph) else gtsam.PriorFactorPose3
+    prior = _factor_class(gtsam, graph, "Prior")
     priors = gtsam.NonlinearFactorGraph()
     for k in held.tolist():
-        priors.add(prior(int(graph.ids[k]), _gtsam_pose(gtsam, X[k]), noise))
+        priors.add(prior(int(graph.ids[k]), _element(gtsam, X[k], graph.group), noise))
     return priors
 
 
@@ -193,7 +226,7 @@ def gtsam_reference_cost(graph, start: np.ndarray, tolerance: float = 1e-14, max
     params.setRelativeErrorTol(tolerance)
     params.setAbsoluteErrorTol(tolerance)
     params.setMaxIterations(max_iterations)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(with_priors, poses_to_values(graph.ids, start), params)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(with_priors, poses_to_values(graph.ids, start, graph.group), params)
     return float(factors.error(optimizer.optimize()))
 
 
@@ -269,7 +302,7 @@ def run_gtsam(
     t0 = time.perf_counter()
     values, priors = _start(gtsam, graph, factors, file_values, init, initial)
     seconds_initialise = time.perf_counter() - t0
-    initial_poses = values_to_poses(values, graph.ids)
+    initial_poses = values_to_poses(values, graph.ids, graph.group)
     initial_cost = float(factors.error(values))
 
     full = gtsam.NonlinearFactorGraph(factors)
@@ -279,11 +312,13 @@ def run_gtsam(
     )
     seconds_write = 0.0
     if output is not None:
+        if _is_similarity(graph.group):
+            raise ValueError("gtsam's writeG2o has no Sim(3) lines: write posegraph's output instead")
         t0 = time.perf_counter()
         gtsam.writeG2o(factors, result, str(output))
         seconds_write = time.perf_counter() - t0
     return GtsamResult(
-        poses=values_to_poses(result, graph.ids), initial_poses=initial_poses, initial_cost=initial_cost,
+        poses=values_to_poses(result, graph.ids, graph.group), initial_poses=initial_poses, initial_cost=initial_cost,
         final_cost=float(factors.error(result)), iterations=iterations,
         converged=iterations < int(max_iterations), method=method, init=init, costs=costs,
         seconds_iterations=seconds_iterations, seconds_read=seconds_read, seconds_initialise=seconds_initialise,
@@ -306,6 +341,12 @@ def _read(gtsam, source, graph):
         from posegraph.io.g2o import read_g2o
 
         graph = read_g2o(path)  # also tells the dimension gtsam's reader must be given
+    if _is_similarity(graph.group):  # gtsam.readG2o has no Sim(3) tags: from our reading, exact log
+        from dataclasses import replace
+
+        graph = replace(graph, group=replace(graph.group, residual_log=None))
+        t0 = time.perf_counter()
+        return graph, graph_to_gtsam(graph), None, time.perf_counter() - t0
     t0 = time.perf_counter()
     if graph.kept_lines:  # TORO's EQUIV merges, which gtsam's reader ignores: gtsam gets our reading
         return graph, graph_to_gtsam(graph), poses_to_values(graph.ids, graph.poses), time.perf_counter() - t0
@@ -321,14 +362,19 @@ def _start(gtsam, graph, factors, file_values, init: str, initial):
     """``(start values, gauge priors)`` for ``init`` (see :func:`run_gtsam`)."""
     if init == "given":
         start = np.asarray(initial, dtype=np.float64)
-        return poses_to_values(graph.ids, start), gauge_priors(graph, start)
+        return poses_to_values(graph.ids, start, graph.group), gauge_priors(graph, start)
     priors = gauge_priors(graph)
     if init == "file":
         # A file without vertex lines (gtsam's sphere2500.txt, manhattan.g2o) gives gtsam no values:
         # use our model's poses.
         if file_values is not None and file_values.size():
             return file_values, priors
-        return poses_to_values(graph.ids, graph.poses), priors
+        return poses_to_values(graph.ids, graph.poses, graph.group), priors
+    if _is_similarity(graph.group):
+        from posegraph.errors import GraphError
+
+        raise GraphError("gtsam has no Sim(3) initialiser: start gtsam from posegraph's poses (compare --gtsam-start same) "
+                         "or the file's", graph.source)
     try:
         if _is_planar(graph):
             lago_graph = graph_to_gtsam(graph, diagonal=True)

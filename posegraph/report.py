@@ -48,7 +48,7 @@ def graph_info(graph) -> dict:
     translation axes: 3×3 and 3×3 of SE(3)'s ``[ω; v]``, 1×1 and 2×2 of SE(2)'s ``[v_x, v_y, ω]``)
     the range of their diagonal entries and of their eigenvalues, the range of the eigenvalues of
     the whole d×d matrices, and ``coupled_edges``, the number of edges whose Ω couples rotation and
-    translation (a non-zero off-diagonal block); ``group`` (``"SE3"`` or ``"SE2"``);
+    translation (a non-zero off-diagonal block); ``group`` (``"SE3"``, ``"SE2"`` or ``"SIM3"``);
     ``initial_cost``, ½ Σ eᵀ Ω e at the file's poses, and there
     ``chi2``, ``dof``, ``chi2_per_dof``, ``chi2_by_kind`` (:func:`chi2_summary`).
     """

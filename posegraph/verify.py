@@ -15,7 +15,9 @@ reference:
   ``X Exp(δ) X⁻¹ = Exp(Ad(X) δ)`` for the adjoint.
 
 Groups: SO(3), SE(3), SO(2) (whose Jacobians are all ``[[1]]``: identities and finite differences
-only) and SE(2). Cases: random tangents (rotation angle uniform in [0, π), translations of size ~1–10), angles
+only), SE(2) and Sim(3) (gtsam's ``Similarity3`` has ``Expmap``, ``Logmap`` and ``AdjointMap`` but no
+``ExpmapDerivative``/``LogmapDerivative``: its Jacobians are checked by finite differences and
+identities, its edges against ``BetweenFactorSimilarity3``; log-scales λ are 0, near 0 and ~N(0, ½)). Cases: random tangents (rotation angle uniform in [0, π), translations of size ~1–10), angles
 near 0 (0, 1e-12 … 1e-2, where closed forms need their Taylor branches) and near π (π − 1e-12 …
 π − 1e-3, where ``Log`` must not divide by sin θ), and, when a graph is given, its edges at the
 file's poses.
@@ -151,6 +153,18 @@ def pose_cases(rng, samples: int) -> dict[str, np.ndarray]:
     return _with_translations(rng, rotation_cases(rng, samples), 3, first=True)
 
 
+def similarity_cases(rng, samples: int) -> dict[str, np.ndarray]:
+    """Tangents ``(k, 7)`` ``[ω; υ; λ]`` of Sim(3): :func:`pose_cases` and λ, a quarter each 0 and
+    within 1e-6 of it (the Taylor branches), the rest ~N(0, ½)."""
+    out = {}
+    for family, xi in pose_cases(rng, samples).items():
+        lam = rng.normal(scale=0.5, size=len(xi))
+        lam[::4] = 0.0
+        lam[1::4] *= 1e-6
+        out[family] = np.concatenate([xi, lam[:, None]], axis=1)
+    return out
+
+
 def planar_pose_cases(rng, samples: int) -> dict[str, np.ndarray]:
     """Tangents ``(k, 3)`` ``[v_x, v_y, ω]`` of SE(2) by family (angles as :func:`planar_rotation_cases`)."""
     return _with_translations(rng, planar_rotation_cases(rng, samples), 2, first=False)
@@ -167,13 +181,14 @@ class _Group(NamedTuple):
 
 
 def _groups() -> list[_Group]:
-    from posegraph.lie import se2, se3, so2, so3
+    from posegraph.lie import se2, se3, sim3, so2, so3
 
     return [
         _Group("so3", so3, rotation_cases, (0, 1, 2), "Rot3"),
         _Group("se3", se3, pose_cases, (0, 1, 2), "Pose3"),
         _Group("so2", so2, planar_rotation_cases, (0,), None),  # every Jacobian is [[1]]: no gtsam needed
         _Group("se2", se2, planar_pose_cases, (2,), "Pose2"),
+        _Group("sim3", sim3, similarity_cases, (0, 1, 2), "Similarity3"),
     ]
 
 
@@ -237,29 +252,39 @@ def _gtsam_group(gtsam, class_name: str, xi: np.ndarray) -> dict[str, np.ndarray
     out: dict[str, list] = {"exp": [], "log": [], "right_jacobian": [], "right_jacobian_inverse": [], "adjoint": []}
     for x in xi:
         element = cls.Expmap(x)
-        out["exp"].append(element.matrix())
+        out["exp"].append(_gtsam_matrix(element))
         out["log"].append(np.asarray(cls.Logmap(element)).reshape(-1))
-        out["right_jacobian"].append(cls.ExpmapDerivative(x))
-        out["right_jacobian_inverse"].append(cls.LogmapDerivative(x))
+        if hasattr(cls, "ExpmapDerivative"):  # Similarity3 has neither derivative
+            out["right_jacobian"].append(cls.ExpmapDerivative(x))
+            out["right_jacobian_inverse"].append(cls.LogmapDerivative(x))
         if hasattr(element, "AdjointMap"):
             out["adjoint"].append(element.AdjointMap())
     return {name: np.array(values) for name, values in out.items()}
 
 
-def _gtsam_between(gtsam, Xi, Xj, Z):
-    """Residuals ``(m, d)`` and Jacobians ``(m, d, d)`` ×2 of gtsam's BetweenFactorPose3 (Pose2 for
-    ``(m, 3, 3)`` poses), unit noise."""
-    from posegraph.gtsam_bridge import _gtsam_pose
+def _gtsam_matrix(element) -> np.ndarray:
+    """gtsam's element as this project's matrix: ``matrix()``, scaled by ``s`` for ``Similarity3``
+    (``[[R, t], [0, 1/s]]`` → ``[[s R, s t], [0, 1]]``, :mod:`posegraph.lie.sim3`)."""
+    if hasattr(element, "scale"):
+        return element.scale() * element.matrix()
+    return element.matrix()
 
-    d = 3 if Xi.shape[-1] == 3 else 6
-    between = gtsam.BetweenFactorPose2 if d == 3 else gtsam.BetweenFactorPose3
+
+def _gtsam_between(gtsam, Xi, Xj, Z, group):
+    """Residuals ``(m, d)`` and Jacobians ``(m, d, d)`` ×2 of gtsam's BetweenFactorPose3 (Pose2,
+    Similarity3 for those groups), unit noise."""
+    from posegraph.gtsam_bridge import _gtsam_pose, _gtsam_similarity
+
+    d = group.dim
+    between = {3: gtsam.BetweenFactorPose2, 6: gtsam.BetweenFactorPose3, 7: gtsam.BetweenFactorSimilarity3}[d]
+    element = (lambda M: _gtsam_similarity(gtsam, M)) if d == 7 else (lambda M: _gtsam_pose(gtsam, M))
     unit = gtsam.noiseModel.Unit.Create(d)
     residuals, jac_i, jac_j = [], [], []
     for a, b, z in zip(Xi, Xj, Z):
-        factor = between(0, 1, _gtsam_pose(gtsam, z), unit)
+        factor = between(0, 1, element(z), unit)
         values = gtsam.Values()
-        values.insert(0, _gtsam_pose(gtsam, a))
-        values.insert(1, _gtsam_pose(gtsam, b))
+        values.insert(0, element(a))
+        values.insert(1, element(b))
         A, rhs = factor.linearize(values).jacobian()
         jac_i.append(A[:, :d])
         jac_j.append(A[:, d:])
@@ -320,7 +345,7 @@ def _gtsam_checks(group: _Group, family: str, xi: np.ndarray, gtsam) -> list[Che
     accurate = _angles(xi, group.rotation_axes) >= GTSAM_POSE2_MIN_ANGLE if cls == "Pose2" else np.ones(len(xi), bool)
     checks = []
     for name, mine, method, tolerance in compared:
-        if accurate.any():  # module docstring: gtsam's Pose2 at small angles
+        if accurate.any() and ref[name].size:  # Similarity3: no derivatives in gtsam  # module docstring: gtsam's Pose2 at small angles
             checks.append(Check(f"{n}.{name}", f"gtsam {cls}.{method}", family, int(accurate.sum()),
                                 _scaled_difference(mine[accurate], ref[name][accurate]), tolerance))  # fmt: skip
     return checks
@@ -339,13 +364,15 @@ def _finite_difference_checks(group: _Group, family: str, xi: np.ndarray) -> lis
     ]  # fmt: skip
 
 
-def _edge_checks(Xi, Xj, Z, family: str, gtsam) -> list[Check]:
-    """Residuals and Jacobians of edges ``(Xi, Xj, Z)`` ``(m, k, k)`` each (SE(3), or SE(2) for ``k = 3``)."""
+def _edge_checks(Xi, Xj, Z, family: str, gtsam, group) -> list[Check]:
+    """Residuals and Jacobians of edges ``(Xi, Xj, Z)`` ``(m, k, k)`` each of ``group`` (a :class:`LieGroup`;
+    its exact ``log``: g2o's first-order Sim(3) error is the cost, not what the Jacobians differentiate)."""
+    from dataclasses import replace
+
     from posegraph.graph import PoseGraph
-    from posegraph.lie.group import SE2, SE3
     from posegraph.solve.residuals import edge_jacobians, edge_residuals
 
-    group = SE2 if Xi.shape[-1] == 3 else SE3
+    group = replace(group, residual_log=None)
     m, d = len(Xi), group.dim
     poses = np.concatenate([Xi, Xj])
     graph = PoseGraph(
@@ -356,14 +383,17 @@ def _edge_checks(Xi, Xj, Z, family: str, gtsam) -> list[Check]:
     jac_i, jac_j = edge_jacobians(poses, graph)
     checks = []
     if gtsam is not None:
-        ref_e, ref_i, ref_j = _gtsam_between(gtsam, Xi, Xj, Z)
-        factor = f"gtsam BetweenFactorPose{3 if d == 6 else 2}"
+        ref_e, ref_i, ref_j = _gtsam_between(gtsam, Xi, Xj, Z, group)
+        factor = "gtsam BetweenFactor" + {3: "Pose2", 6: "Pose3", 7: "Similarity3"}[d]
         checks.append(
             Check("edge residual", factor, family, m, _scaled_difference(residuals, ref_e), CLOSED_FORM_TOLERANCE)
         )
         # gtsam's Pose2 derivatives lose digits at small angles (module docstring).
         cases = _angles(residuals, group.rotation_axes) >= GTSAM_POSE2_MIN_ANGLE if d == 3 else np.ones(m, bool)
-        if cases.any():
+        # gtsam 4.3's Similarity3::Logmap returns the identity as its derivative, so the
+        # BetweenFactorSimilarity3 Jacobians are exact only at a zero residual (∂e/∂δj = I always):
+        # Sim(3)'s edge Jacobians are checked by finite differences alone.
+        if cases.any() and d != 7:
             checks += [
                 Check("edge Jacobian ∂e/∂δi", factor, family, int(cases.sum()),
                       _scaled_difference(jac_i[cases], ref_i[cases]), CLOSED_FORM_TOLERANCE),
@@ -389,16 +419,16 @@ def _edge_checks(Xi, Xj, Z, family: str, gtsam) -> list[Check]:
     return checks
 
 
-def _random_edges(rng, samples: int, residual_scale: float, planar: bool = False):
-    """Random edges ``(Xi, Xj, Z)`` of SE(3) (SE(2) if ``planar``) with residuals of ``residual_scale``."""
-    from posegraph.lie import se2, se3
+def _random_edges(rng, samples: int, residual_scale: float, group):
+    """Random edges ``(Xi, Xj, Z)`` of ``group`` (SE(3), SE(2), Sim(3)) with residuals of ``residual_scale``."""
+    from posegraph.lie import se2, se3, sim3
 
-    group, cases = (se2, planar_pose_cases) if planar else (se3, pose_cases)
-    Xi = group.exp(cases(rng, samples)["random"])
-    Xj = group.exp(cases(rng, samples)["random"])
+    module, cases = {3: (se2, planar_pose_cases), 6: (se3, pose_cases), 7: (sim3, similarity_cases)}[group.dim]
+    Xi = module.exp(cases(rng, samples)["random"])
+    Xj = module.exp(cases(rng, samples)["random"])
     # Measurements close to the truth (residual angles ≲ 3·residual_scale, far from π).
-    noise = rng.normal(scale=residual_scale, size=(samples, Xi.shape[-1] * (Xi.shape[-1] - 1) // 2))
-    Z = group.between(Xi, Xj) @ group.exp(noise)
+    noise = rng.normal(scale=residual_scale, size=(samples, group.dim))
+    Z = module.between(Xi, Xj) @ module.exp(noise)
     return Xi, Xj, Z
 
 
@@ -415,17 +445,19 @@ def verify_all(graph=None, *, samples: int = 500, seed: int = 0, use_gtsam: bool
         gtsam = require_gtsam()
     rng = np.random.default_rng(seed)
     samples = max(int(samples), 1)
+    from posegraph.lie.group import SE2, SE3, SIM3
+
     checks = _lie_checks(rng, samples, gtsam)
-    for planar, space in ((False, ""), (True, "SE(2) ")):
+    for group, space in ((SE3, ""), (SE2, "SE(2) "), (SIM3, "Sim(3) ")):
         for label, scale in (("random, small residuals", 0.05), ("random, large residuals", 0.6)):
-            checks += _edge_checks(*_random_edges(rng, samples, scale, planar), space + label, gtsam)
+            checks += _edge_checks(*_random_edges(rng, samples, scale, group), space + label, gtsam, group)
     if graph is not None and graph.num_edges:
         Xi = graph.poses[graph.edge_from]
         Xj = graph.poses[graph.edge_to]
         name = graph.source or "the graph"
         import os
 
-        checks += _edge_checks(Xi, Xj, graph.measurements, f"edges of {os.path.basename(name)}", gtsam)
+        checks += _edge_checks(Xi, Xj, graph.measurements, f"edges of {os.path.basename(name)}", gtsam, graph.group)
     if graph is not None and graph.priors is not None and len(graph.priors):
         import os
 

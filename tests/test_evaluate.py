@@ -284,3 +284,22 @@ def test_chain_odometry_of_2d_steps():
     ids, chained = chain_odometry(ids_from, ids_to, se2.between(poses[ids_from], poses[ids_to]))
     np.testing.assert_array_equal(ids, np.arange(6))
     np.testing.assert_allclose(chained, poses, atol=1e-12)
+
+
+def test_sim3_trajectories_align_by_a_similarity_with_each_poses_scale_applied():
+    from posegraph.evaluate import align_rigid, evaluate, is_similarity_trajectory
+    from posegraph.lie import se3, sim3
+
+    rng = np.random.default_rng(11)
+    truth = se3.exp(np.concatenate([rng.normal(size=(30, 3)), 5 * rng.normal(size=(30, 3))], axis=1))
+    similarity = sim3.exp(np.array([0.3, -0.2, 0.1, 4.0, -1.0, 2.0, np.log(2.5)]))
+    # The estimate: the truth seen through a similarity, each pose carrying its own scale besides.
+    estimate = (similarity @ truth) @ sim3.exp(np.concatenate([np.zeros((30, 6)), rng.normal(size=(30, 1))], axis=1))
+    assert is_similarity_trajectory(estimate) and not is_similarity_trajectory(truth)
+    c, R, t = align_rigid(estimate[:, :3, 3], truth[:, :3, 3], with_scale=True)
+    assert c == pytest.approx(1 / 2.5, rel=1e-12)
+    result = evaluate(np.arange(30), estimate, np.arange(30), truth)
+    assert result.ate_translation.max < 1e-9 and result.ate_rotation.max < 1e-6
+    assert result.rpe_translation.max < 1e-9
+    rigid = evaluate(np.arange(30), estimate, np.arange(30), truth, with_scale=False)
+    assert rigid.ate_translation.rmse > 1.0

@@ -366,3 +366,26 @@ def test_cli_inject(tmp_path):
     too_many = _cli("inject", str(source), "--count", "100000", "-o", str(tmp_path / "x.g2o"))
     assert too_many.returncode == 2 and "free" in too_many.stderr and "Traceback" not in too_many.stderr
     assert not (tmp_path / "x.g2o").exists() and not (tmp_path / "x.outliers.txt").exists()
+
+
+def test_monocular_graph_drifts_in_scale_and_its_loop_closures_carry_the_true_scale():
+    from datasets.synthetic import NoiseParams, monocular
+    from posegraph.lie import sim3
+    from posegraph.lie.group import SIM3_G2O
+    from posegraph.solve.residuals import cost
+
+    dataset = monocular(laps=4, nodes_per_lap=60, seed=3)
+    graph, truth = dataset.graph, dataset.ground_truth
+    assert graph.group is SIM3_G2O and graph.num_vertices == 240
+    truth_scales = sim3.scale(truth)
+    assert truth_scales.max() / truth_scales.min() > 1.1  # the map's scale drifts (σ√240 ≈ 0.15)
+    np.testing.assert_allclose(sim3.scale(graph.poses), 1.0, atol=1e-12)  # the tracker's poses: no scale
+    measured = sim3.scale(graph.measurements)
+    np.testing.assert_allclose(measured[dataset.odometry], 1.0, atol=1e-12)  # odometry sees no scale change
+    loops = ~dataset.odometry
+    true_ratio = truth_scales[graph.edge_to[loops]] / truth_scales[graph.edge_from[loops]]
+    np.testing.assert_allclose(np.log(measured[loops] / true_ratio), 0.0, atol=0.005)  # σ_λ = 0.001
+    np.testing.assert_array_equal(graph.information[:, 6, 6], np.where(dataset.odometry, 1e4, 1e6))
+    exact = monocular(laps=3, nodes_per_lap=40, noise=NoiseParams(noiseless=True))
+    odometry_scale_error = np.log(sim3.scale(exact.ground_truth[1:]) / sim3.scale(exact.ground_truth[:-1]))
+    assert 2 * cost(exact.graph, exact.ground_truth) == pytest.approx(1e4 * np.sum(odometry_scale_error**2), rel=1e-6)

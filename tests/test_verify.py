@@ -74,3 +74,16 @@ def test_a_graph_with_priors_gets_its_prior_jacobians_checked_and_a_wrong_one_ca
     monkeypatch.setattr(unary, "prior_jacobians", lambda *a: (real(*a)[0], -real(*a)[1]))
     failed = {c.quantity for c in verify_all(graph, samples=5, use_gtsam=False) if not c.passed}
     assert failed == {"position prior Jacobian ∂e/∂δ"}
+def test_sim3_is_covered_and_a_wrong_quadrature_is_caught(monkeypatch):
+    """Sim(3) runs every family and its edges; too few Gauss–Legendre nodes for Jr's integral fail."""
+    from posegraph.lie import sim3
+
+    checks = verify_all(samples=20, use_gtsam=False)
+    sim3_checks = [c for c in checks if c.quantity.startswith("sim3.") or c.cases.startswith("Sim(3)")]
+    assert {c.cases for c in sim3_checks} >= {"random", "near 0", "near π", "Sim(3) random, small residuals"}
+    assert all(c.passed for c in sim3_checks)
+    nodes, weights = np.polynomial.legendre.leggauss(1)
+    monkeypatch.setattr(sim3, "_TAU", 0.5 * (nodes + 1.0))
+    monkeypatch.setattr(sim3, "_TAU_WEIGHTS", 0.5 * weights)
+    failed = {c.quantity for c in verify_all(samples=20, use_gtsam=False) if not c.passed}
+    assert {"sim3.right_jacobian", "sim3.right_jacobian_inverse", "edge Jacobian ∂e/∂δi"} <= failed

@@ -89,8 +89,10 @@ def run(args) -> int:
     print(f"estimate:  {estimate}")
     print(f"reference: {reference}")
     matched = "priors, each with its vertex" if args.priors else "poses by vertex id"
+    group = _alignment_group(estimate_poses, reference_poses)
     print(f"matched:   {result.num_matched} {matched}; ATE after "
-          + (f"a least-squares {_alignment_group(estimate_poses, reference_poses)} alignment (Umeyama, no scale)"
+          + (f"a least-squares {group} alignment "
+             + ("(Umeyama with scale, each pose's scale applied)" if group == "Sim(3)" else "(Umeyama, no scale)")
              if not args.no_align else "no alignment")
           + f"; RPE between consecutive ids; translations in {LENGTH_UNIT} (the files' unit), rotations in degrees")
     names = ("rmse", "mean", "median", "std", "min", "max")
@@ -120,5 +122,9 @@ def _against_priors(args):
 
 def _alignment_group(estimate_poses, reference_poses) -> str:
     """``"SE(2)"`` when both trajectories are planar ``(n, 3, 3)`` (:func:`posegraph.evaluate.evaluate` then
-    aligns in the plane), else ``"SE(3)"``."""
+    aligns in the plane), ``"Sim(3)"`` when either carries scales (a similarity alignment), else ``"SE(3)"``."""
+    from posegraph.evaluate import is_similarity_trajectory
+
+    if is_similarity_trajectory(estimate_poses) or is_similarity_trajectory(reference_poses):
+        return "Sim(3)"
     return "SE(2)" if estimate_poses.shape[-1] == reference_poses.shape[-1] == 3 else "SE(3)"

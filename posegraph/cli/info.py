@@ -76,10 +76,15 @@ def _read_for_description(args):
     return graph, refusals
 
 
+_GROUP_NOTES = {"SE3": "", "SE2": " (2D: SE(2) poses)", "SIM3": " (Sim(3) poses: rotation, translation, scale)"}
+"""What the ``file`` line adds per group (by :attr:`posegraph.lie.group.LieGroup.name`)."""
+_TANGENT_SIZES = {"SE3": 6, "SE2": 3, "SIM3": 7}
+
+
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     """The text output's ``(label, value)`` lines from :func:`posegraph.report.graph_info`."""
     rows = [
-        ("file", display_name(path) + ("" if info["group"] == "SE3" else " (2D: SE(2) poses)")),
+        ("file", display_name(path) + _GROUP_NOTES[info["group"]]),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "
                      + ("contiguous" if info["ids_contiguous"] else "not contiguous")
                      + f"), {info['num_fixed']} fixed"),
@@ -97,7 +102,7 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
                      f"diagonal {r['diagonal_min']:.4g} .. {r['diagonal_max']:.4g}, "
                      f"eigenvalues {r['eigenvalue_min']:.4g} .. {r['eigenvalue_max']:.4g}"))
     whole = info["information"]
-    size = 6 if info["group"] == "SE3" else 3
+    size = _TANGENT_SIZES[info["group"]]
     rows.append((f"information, {size}x{size}", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
     rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (½χ² at the file's poses; χ² "

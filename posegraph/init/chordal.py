@@ -51,6 +51,7 @@ from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
 from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
+from posegraph.init.scales import edge_scale_terms, log_scales, rotation_blocks
 from posegraph.init.weights import rotation_weights, translation_information
 
 __all__ = ["chordal_initialization", "chordal_problem", "chordal_rotations", "translations_given_rotations"]
@@ -80,7 +81,8 @@ def translations_given_rotations(
     r = graph.group.space_dim
     if rotations.shape != (graph.num_vertices, r, r):
         raise ValueError(f"rotations must have shape {(graph.num_vertices, r, r)}, got {rotations.shape}")
-    return _translations(graph, rotations, chordal_problem(graph, linear_solver))
+    problem = chordal_problem(graph, linear_solver)
+    return _translations(graph, rotations, problem, log_scales(graph, problem.held, linear_solver))
 
 
 def chordal_initialization(
@@ -109,7 +111,8 @@ def chordal_initialization(
         raise ValueError("the chordal problem was analysed for other edges than the graph's")
     try:
         rotations = _rotations(graph, problem)
-        translations = _translations(graph, rotations, problem)
+        scales = log_scales(graph, problem.held, problem.linear_solver)  # Sim(3) only (posegraph.init.scales)
+        translations = _translations(graph, rotations, problem, scales)
     except NotPositiveDefiniteError as err:
         raise GraphError(
             f"the chordal initialisation failed numerically ({err}); the information matrices may span too "
@@ -117,7 +120,7 @@ def chordal_initialization(
         ) from err  # fmt: skip
     r = graph.group.space_dim
     poses = np.zeros((graph.num_vertices, r + 1, r + 1))
-    poses[:, :r, :r] = rotations
+    poses[:, :r, :r] = rotations * np.exp(scales)[:, None, None]
     poses[:, :r, r] = translations
     poses[:, r, r] = 1.0
     held = problem.held
@@ -137,11 +140,11 @@ def chordal_problem(graph: PoseGraph, linear_solver: str = "auto", ordering: str
 def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:
     """Stage 1: solve for ``Y_k = R_kᵀ`` (residual ``Y_j − R_zᵀ Y_i``, weight ``w I``), project."""
     r = graph.group.space_dim
-    file_rotations = graph.poses[:, :r, :r]
+    file_rotations, _ = rotation_blocks(graph.poses, graph.group)  # Sim(3): without the scales
     weights = rotation_weights(graph.information, graph.group)
     transposed = problem.solve(
         file_rotations.transpose(0, 2, 1),
-        transfer=graph.measurements[:, :r, :r].transpose(0, 2, 1),
+        transfer=rotation_blocks(graph.measurements, graph.group)[0].transpose(0, 2, 1),
         weight=weights[:, None, None] * np.eye(r),
     )
     rotations = np.array(file_rotations, copy=True)
@@ -150,31 +153,38 @@ def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:
     return rotations
 
 
-def _translation_log_matrix(group, rotation_error: np.ndarray) -> np.ndarray:
-    """``(m, r, r)`` ``V(δ)⁻¹``: the translation block of ``Jl([δ; 0])⁻¹`` (module docstring, stage 2)."""
+def _translation_log_matrix(group, rotation_error: np.ndarray, scale_error: np.ndarray) -> np.ndarray:
+    """``(m, r, r)`` ``V(δ)⁻¹``: the translation block of ``Jl([δ; 0])⁻¹`` (module docstring, stage 2);
+    Sim(3): of ``Jl([δ; 0; λ_e])⁻¹``, ``V(δ, λ_e)⁻¹``, with the edge's log-scale error ``λ_e``."""
     tangent = np.zeros(rotation_error.shape[:-1] + (group.dim,))
     tangent[..., list(group.rotation_axes)] = rotation_error
+    tangent[..., list(group.scale_axes)] = scale_error[..., None]
     translation = list(group.translation_axes)
     return group.left_jacobian_inverse(tangent)[..., translation, :][..., translation]
 
 
-def _translations(graph: PoseGraph, rotations: np.ndarray, problem: RelativeLeastSquares) -> np.ndarray:
-    """Stage 2: residual ``t_j − t_i − h`` with weight ``Bᵀ Ω_vv B`` (module docstring)."""
+def _translations(
+    graph: PoseGraph, rotations: np.ndarray, problem: RelativeLeastSquares, scales: np.ndarray | None = None
+) -> np.ndarray:
+    """Stage 2: residual ``t_j − t_i − h`` with weight ``Bᵀ Ω_vv B`` (module docstring). Sim(3), with the
+    log-scales ``scales (n,)``: ``B`` and ``h`` carry ``1/(s_z s_i)``, ``V`` the edge's scale error, and
+    its ``Ω_vλ`` coupling joins ``Ω_vω``'s (:mod:`posegraph.init.scales`)."""
     group, r = graph.group, graph.group.space_dim
     i, j = graph.edge_from, graph.edge_to
-    measured_rotation_t = graph.measurements[:, :r, :r].transpose(0, 2, 1)
+    factor, offset_factor, scale_error = edge_scale_terms(graph, scales)
+    measured_rotation_t = rotation_blocks(graph.measurements, group)[0].transpose(0, 2, 1)
     rotation_error = group.rotations.log(measured_rotation_t @ rotations[i].transpose(0, 2, 1) @ rotations[j])  # δ
-    to_residual = _translation_log_matrix(group, rotation_error) @ measured_rotation_t  # V(δ)⁻¹ R_zᵀ
-    transfer_b = to_residual @ rotations[i].transpose(0, 2, 1)  # B
-    offset = (to_residual @ graph.measurements[:, :r, r : r + 1])[..., 0]  # V(δ)⁻¹ R_zᵀ t_z
+    to_residual = _translation_log_matrix(group, rotation_error, scale_error) @ measured_rotation_t  # V(δ)⁻¹ R_zᵀ
+    transfer_b = to_residual @ rotations[i].transpose(0, 2, 1) * factor[:, None, None]  # B
+    offset = (to_residual @ graph.measurements[:, :r, r : r + 1])[..., 0] * offset_factor[:, None]  # V⁻¹ R_zᵀ t_z / s_z
 
     omega_vv = translation_information(graph.information, group)
-    omega_v_omega = graph.information[:, group.translation_block, group.rotation_block]
+    known_error = graph.information[:, group.translation_block, group.rotation_block] @ rotation_error[..., None]
+    if group.scale_axes:
+        known_error = known_error + graph.information[:, group.translation_block, group.scale_axes] * scale_error[:, None, None]
     weight = transfer_b.transpose(0, 2, 1) @ omega_vv @ transfer_b
     weight = 0.5 * (weight + weight.transpose(0, 2, 1))
-    weighted_offset = transfer_b.transpose(0, 2, 1) @ (
-        omega_vv @ offset[..., None] - omega_v_omega @ rotation_error[..., None]
-    )
+    weighted_offset = transfer_b.transpose(0, 2, 1) @ (omega_vv @ offset[..., None] - known_error)
     translations = problem.solve(
         graph.poses[:, :r, r : r + 1],
         transfer=np.broadcast_to(np.eye(r), (graph.num_edges, r, r)),

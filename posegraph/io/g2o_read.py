@@ -29,6 +29,7 @@ from posegraph.io.g2o_landmarks import landmark_refusal
 from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
+from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
 from posegraph.io.text_input import read_text
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
@@ -140,6 +141,8 @@ def _parse(
     text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
 ) -> PoseGraph:
     groups, first_line = group_lines(text)
+    if is_sim3_file(groups):  # VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP: their own module
+        return read_sim3(groups, first_line, path, source, require_edges=require_edges, repair_information=repair_information)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
     read_here = READ_TAGS | {EQUIV_TAG} | (PRIOR_TAGS if PRIOR_RECORDS.keys() & groups.keys() else frozenset())
     skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in read_here}  # (offsets: for priors)

@@ -20,6 +20,7 @@ from posegraph.io.g2o_format import (
     FIX_TAG, G2O_TO_TANGENT, PRIMARY_EDGE_TAG, UPPER_COLS, UPPER_COLS_2D, UPPER_ROWS,
     UPPER_ROWS_2D, VERTEX_SE2_TAG, VERTEX_TAG,
 )
+from posegraph.io.g2o_sim3 import format_sim3
 from posegraph.lie import se2, so3
 
 
@@ -43,6 +44,8 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     k = graph.group.matrix_size
     if poses.shape != (graph.num_vertices, k, k):
         raise ValueError(f"poses must have shape {(graph.num_vertices, k, k)}, got {poses.shape}")
+    if graph.group.scale_axes:  # Sim(3): g2o's VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP
+        return format_sim3(graph, poses)
     planar = k == 3
     vertex_tag = VERTEX_SE2_TAG if planar else VERTEX_TAG
     vertex_values = _pose_values(poses, planar)

@@ -1,7 +1,7 @@
 """One small interface to a matrix Lie group, so that the solver is written once for all of them.
 
 A :class:`LieGroup` bundles the batched functions of one group module (:mod:`posegraph.lie.se3`,
-:mod:`posegraph.lie.se2`; a ``sim3`` module with the same function names later) with the two sizes the
+:mod:`posegraph.lie.se2`, :mod:`posegraph.lie.sim3`) with the two sizes the
 solver needs: the tangent dimension (the block size of the normal equations) and the size of the
 matrices that represent the elements; and, for the initialisers, where the rotation and the
 translation sit in the tangent and the rotation group's module. Conventions are the project's (``docs/architecture.md``):
@@ -17,15 +17,15 @@ With these, an edge residual ``e = Log(Z⁻¹ X_i⁻¹ X_j)`` has the Jacobians 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import ModuleType
 from typing import Callable
 
 import numpy as np
 
-from posegraph.lie import se2, se3, so2, so3
+from posegraph.lie import se2, se3, sim3, so2, so3
 
-__all__ = ["LieGroup", "SE3", "SE2", "embed_in_se3"]
+__all__ = ["LieGroup", "SE3", "SE2", "SIM3", "SIM3_G2O", "embed_in_se3"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,17 @@ class LieGroup:
     rotations: ModuleType | None = None
     """The rotation group's module (:mod:`posegraph.lie.so3`, :mod:`posegraph.lie.so2`): ``log``,
     ``project`` of the ``(…, r, r)`` rotation blocks, ``r = matrix_size − 1``."""
+    scale_axes: tuple = ()
+    """Tangent index of the log-scale λ (``(6,)`` for Sim(3)); empty for the rigid groups."""
+    residual_log: Callable | None = None
+    """``(…, k, k) -> (…, d)``: the ``Log`` edge residuals use when a file format defines its cost with
+    its own (g2o's ``EdgeSim3``: :func:`posegraph.lie.sim3.g2o_log`, first-order near θ = 0 and
+    λ = 0); None: :attr:`log`. The Jacobians are those of :attr:`log` either way."""
+
+    @property
+    def edge_log(self) -> Callable:
+        """The ``Log`` of edge residuals: :attr:`residual_log` if set, else :attr:`log`."""
+        return self.residual_log if self.residual_log is not None else self.log
 
     @property
     def rotation_block(self) -> slice:
@@ -85,6 +96,7 @@ class LieGroup:
     def of(
         cls, name: str, module: ModuleType, dim: int, matrix_size: int, *,
         rotation_axes: tuple = (), translation_axes: tuple = (), rotations: ModuleType | None = None,
+        scale_axes: tuple = (),
     ) -> "LieGroup":  # fmt: skip
         """The group whose functions are those of ``module`` (named as in :mod:`posegraph.lie.se3`).
 
@@ -96,10 +108,12 @@ class LieGroup:
         return cls(
             name=name, dim=dim, matrix_size=matrix_size, **functions,
             rotation_axes=tuple(rotation_axes), translation_axes=tuple(translation_axes), rotations=rotations,
+            scale_axes=tuple(scale_axes),
         )  # fmt: skip
 
     def __repr__(self) -> str:
-        return f"LieGroup({self.name}, dim={self.dim}, matrix_size={self.matrix_size})"
+        own_log = "" if self.residual_log is None else ", residual_log=" + self.residual_log.__name__
+        return f"LieGroup({self.name}, dim={self.dim}, matrix_size={self.matrix_size}{own_log})"
 
 
 def _forward(module: ModuleType, name: str) -> Callable:
@@ -122,9 +136,31 @@ SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""
 SE2 = LieGroup.of("SE2", se2, 3, 3, rotation_axes=(2,), translation_axes=(0, 1), rotations=so2)
 """Rigid motions in the plane: ``(…, 3, 3)`` matrices, tangent ``[v_x, v_y, ω]``."""
+SIM3 = LieGroup.of(
+    "SIM3", sim3, 7, 4, rotation_axes=(0, 1, 2), translation_axes=(3, 4, 5), rotations=so3, scale_axes=(6,),
+)  # fmt: skip
+"""Similarities in 3D: ``(…, 4, 4)`` matrices ``[[s R, t], [0, 1]]``, tangent ``[ω; υ; λ]``, λ = log s."""
+SIM3_G2O = replace(SIM3, residual_log=_forward(sim3, "g2o_log"))
+"""Sim(3) with g2o's ``EdgeSim3`` error as the cost (:func:`posegraph.lie.sim3.g2o_log`): what the
+g2o reader gives Sim(3) files, so that the χ² reported is the one g2o computes."""
 
 
 def embed_in_se3(poses):
-    """``poses`` as SE(3) matrices: ``(…, 4, 4)`` as they are, SE(2)'s ``(…, 3, 3)`` embedded in the
-    plane z = 0 (:func:`posegraph.lie.se2.to_se3`), for what is written or compared in 3D."""
-    return se2.to_se3(poses) if np.shape(poses)[-1] == 3 else poses
+    """``poses`` as SE(3) matrices, for what is written or compared in 3D: SE(2)'s ``(…, 3, 3)``
+    embedded in the plane z = 0 (:func:`posegraph.lie.se2.to_se3`); ``(…, 4, 4)`` as they are, except
+    that a Sim(3) pose ``[[s R, t], [0, 1]]`` becomes ``[[R, t], [0, 1]]`` (its scale applied, as a
+    monocular system corrects its keyframes after a Sim(3) optimisation: the camera keeps its
+    position ``t``). Poses with ``|s − 1| ≤ 1e-12`` (every SE(3) pose) are returned unchanged."""
+    if np.shape(poses)[-1] == 3:
+        return se2.to_se3(poses)
+    poses = np.asarray(poses)
+    s = sim3.scale(poses) if poses.size else np.ones(poses.shape[:-2])
+    if np.all(np.abs(s - 1.0) <= _UNIT_SCALE_TOLERANCE):
+        return poses
+    out = np.array(poses, dtype=np.float64)
+    out[..., :3, :3] /= np.where(np.abs(s - 1.0) <= _UNIT_SCALE_TOLERANCE, 1.0, s)[..., None, None]
+    return out
+
+
+_UNIT_SCALE_TOLERANCE = 1e-12
+"""Scales this close to 1 are taken as rigid motions by :func:`embed_in_se3` (SE(3) poses have det(R) = 1 to ~1e-16)."""

@@ -91,7 +91,7 @@ def edge_errors(poses: np.ndarray, graph: PoseGraph) -> tuple[np.ndarray, np.nda
 
     def compute(part):
         relative = group.between(poses[graph.edge_from[part]], poses[graph.edge_to[part]])
-        return relative, group.log(group.between(graph.measurements[part], relative))
+        return relative, group.edge_log(group.between(graph.measurements[part], relative))
 
     return by_slices(graph.num_edges, compute)  # slices, for the caches (CHUNK_EDGES)
 

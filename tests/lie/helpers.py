@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from posegraph.lie import se2, se3
+from posegraph.lie import se2, se3, sim3
 
 # The rotation angles every identity is checked at (issue 2), besides random inputs.
 EDGE_ANGLES = (0.0, 1e-12, 1e-8, 1e-4, 1.0, np.pi - 1e-6, np.pi)
@@ -93,6 +93,19 @@ class GroupCase:
         return self.tangents_at_angle(np.random.default_rng(seed), angle, n)
 
 
+def sim3_tangents(rng, shape, max_angle=np.pi, translation_scale=2.0, log_scale=0.5) -> np.ndarray:
+    """sim(3) tangents [ω; υ; λ]: an se(3) tangent and a log-scale λ ~ N(0, log_scale²)."""
+    return np.concatenate([tangents(rng, shape, max_angle, translation_scale), log_scale * rng.normal(size=shape + (1,))], axis=-1)
+
+
+def sim3_tangents_at_angle(rng, angle: float, n: int = 16) -> np.ndarray:
+    """``n`` sim(3) tangents with |ω| = angle; λ = 0 and λ near 0 among them (their own branches)."""
+    lam = 0.5 * rng.normal(size=(n, 1))
+    lam[:4, 0] = (0.0, 1e-12, 1e-6, -1e-3)[: min(n, 4)]
+    return np.concatenate([tangents_at_angle(rng, angle, n), lam], axis=-1)
+
+
 SE3_CASE = GroupCase("se3", se3, 6, 4, tangents, tangents_at_angle)
 SE2_CASE = GroupCase("se2", se2, 3, 3, se2_tangents, se2_tangents_at_angle)
-GROUP_CASES = (SE3_CASE, SE2_CASE)
+SIM3_CASE = GroupCase("sim3", sim3, 7, 4, sim3_tangents, sim3_tangents_at_angle)
+GROUP_CASES = (SE3_CASE, SE2_CASE, SIM3_CASE)
