@@ -151,20 +151,7 @@ def check_information(
     bad = np.flatnonzero(zero | (hopeless if repair else not_psd))
     if bad.size:
         e = bad[0]
-        shown = np.array2string(eigenvalues[e], precision=4, separator=", ", max_line_width=1000)
-        if zero[e]:
-            reason = "the information matrix is all zero: the edge would constrain nothing"
-        elif hopeless[e]:
-            reason = (
-                f"the information matrix has no positive eigenvalue (eigenvalues {shown}): "
-                "nothing would be left of it after clipping to a positive semi-definite matrix"
-            )
-        else:
-            reason = (
-                f"the information matrix is not positive semi-definite (eigenvalues {shown}); use "
-                "--repair-information (read_g2o(..., repair_information=True)) to clip it to the nearest "
-                "positive semi-definite matrix"
-            )
+        reason = _refusal_reason(eigenvalues[e], zero[e], hopeless[e])
         return information, G2oFormatError(f"{tags[e]}: {reason}", path, int(numbers[e])), []
     notes = []
     if repair and not_psd.any():
@@ -188,6 +175,23 @@ def check_information(
             "(gtsam's Gaussian noise model does not represent singular matrices exactly)"
         )
     return information, None, notes
+
+
+def _refusal_reason(eigenvalues: np.ndarray, zero: bool, hopeless: bool) -> str:
+    """Why one information matrix (its ``(d,)`` ascending ``eigenvalues``) is refused."""
+    shown = np.array2string(eigenvalues, precision=4, separator=", ", max_line_width=1000)
+    if zero:
+        return "the information matrix is all zero: the edge would constrain nothing"
+    if hopeless:
+        return (
+            f"the information matrix has no positive eigenvalue (eigenvalues {shown}): "
+            "nothing would be left of it after clipping to a positive semi-definite matrix"
+        )
+    return (
+        f"the information matrix is not positive semi-definite (eigenvalues {shown}); use "
+        "--repair-information (read_g2o(..., repair_information=True)) to clip it to the nearest "
+        "positive semi-definite matrix"
+    )
 
 
 def _nearest_positive_definite(matrices: np.ndarray) -> np.ndarray:
