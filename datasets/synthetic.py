@@ -249,53 +249,14 @@ def _build(
     loop_candidates = np.asarray(loop_candidates, dtype=np.int64).reshape(-1, 2)
     # A candidate joining consecutive poses would duplicate an odometry edge (the sphere's ring seam).
     loop_candidates = loop_candidates[np.abs(loop_candidates[:, 1] - loop_candidates[:, 0]) != 1]
+    pairs, is_odometry, is_outlier = _edge_pairs(name, n, loop_candidates, noise, rng)
+    exact = _exact_measurements(truth, pairs, is_outlier, loop_candidates, rng, group)
+    measurements, information = _noisy(exact, is_odometry, noise, rng, group)
 
-    # 1. Which loop closures are kept.
-    keep = int(round(noise.loop_closure_density * len(loop_candidates)))
-    chosen = np.sort(rng.choice(len(loop_candidates), size=keep, replace=False)) if keep else np.zeros(0, np.int64)
-    loops = loop_candidates[chosen]
-
-    # 2. Outliers: outliers / (inliers + outliers) = outlier_fraction.
-    f = noise.outlier_fraction
-    num_outliers = int(round(f / (1.0 - f) * len(loops))) if f > 0 else 0
-    outlier_pairs = _outlier_pairs(name, n, num_outliers, loop_candidates, rng)
-
-    odometry_pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
-    pairs = np.concatenate([odometry_pairs, loops, outlier_pairs])
-    m = len(pairs)
-    is_odometry = np.zeros(m, bool)
-    is_odometry[: n - 1] = True
-    is_outlier = np.zeros(m, bool)
-    is_outlier[m - num_outliers :] = True
-
-    # 3. Exact measurements; an outlier borrows a random true loop closure's relative pose
-    #    (or a random relative pose when the shape has no loop closures to borrow from).
-    exact = group.between(truth[pairs[:, 0]], truth[pairs[:, 1]])
-    if num_outliers:
-        if len(loop_candidates):
-            donors = loop_candidates[rng.integers(0, len(loop_candidates), size=num_outliers)]
-            exact[is_outlier] = group.between(truth[donors[:, 0]], truth[donors[:, 1]])
-        else:
-            exact[is_outlier] = _random_poses(rng, num_outliers, 1.0, group)
-
-    # 4. Noise: Z = Z_true · Exp(δ), δ ~ N(0, diag(σ_rot², σ_trans²)) in the tangent order.
-    d = group.dim
-    odometry, loop = _noise_arguments(noise, group)
-    odometry_sigmas, loop_sigmas = _sigmas(*odometry), _sigmas(*loop)
-    sigmas = np.where(is_odometry[:, None], odometry_sigmas, loop_sigmas)
-    delta = rng.standard_normal((m, d)) * sigmas
-    if noise.noiseless:
-        delta[:] = 0.0
-    measurements = exact @ group.exp(delta)
-
-    information = np.empty((m, d, d))
-    information[is_odometry] = _information(*odometry)
-    information[~is_odometry] = _information(*loop)
-
-    # 5. Initial values: noisy odometry composed from the true first pose.
+    # Initial values: noisy odometry composed from the true first pose.
     initial = _compose_chain(truth[0], measurements[: n - 1])
 
-    # 6. Front-end order: by newer vertex, then older.
+    # Front-end order: by newer vertex, then older.
     order = np.lexsort((pairs[:, 0], pairs[:, 1]))
     graph = PoseGraph(
         ids=np.arange(n, dtype=np.int64),
@@ -314,6 +275,55 @@ def _build(
         odometry=is_odometry[order],
         parameters=parameters,
     )
+
+
+def _edge_pairs(name: str, n: int, loop_candidates: np.ndarray, noise: NoiseParams, rng) -> tuple:
+    """``(pairs (m, 2), is_odometry (m,), is_outlier (m,))``: the chain, the loop closures kept (a
+    ``loop_closure_density`` share of the candidates) and the outliers (``outlier_fraction`` of all
+    loop closures), in that order."""
+    keep = int(round(noise.loop_closure_density * len(loop_candidates)))
+    chosen = np.sort(rng.choice(len(loop_candidates), size=keep, replace=False)) if keep else np.zeros(0, np.int64)
+    loops = loop_candidates[chosen]
+    f = noise.outlier_fraction  # outliers / (inliers + outliers)
+    num_outliers = int(round(f / (1.0 - f) * len(loops))) if f > 0 else 0
+    outlier_pairs = _outlier_pairs(name, n, num_outliers, loop_candidates, rng)
+    odometry_pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+    pairs = np.concatenate([odometry_pairs, loops, outlier_pairs])
+    m = len(pairs)
+    is_odometry = np.zeros(m, bool)
+    is_odometry[: n - 1] = True
+    is_outlier = np.zeros(m, bool)
+    is_outlier[m - num_outliers :] = True
+    return pairs, is_odometry, is_outlier
+
+
+def _exact_measurements(truth, pairs, is_outlier, loop_candidates, rng, group: LieGroup) -> np.ndarray:
+    """``(m, k, k)`` true relative poses; an outlier borrows a random true loop closure's (or, when
+    the shape has no loop closures to borrow from, a random relative pose)."""
+    exact = group.between(truth[pairs[:, 0]], truth[pairs[:, 1]])
+    count = int(np.count_nonzero(is_outlier))
+    if count:
+        if len(loop_candidates):
+            donors = loop_candidates[rng.integers(0, len(loop_candidates), size=count)]
+            exact[is_outlier] = group.between(truth[donors[:, 0]], truth[donors[:, 1]])
+        else:
+            exact[is_outlier] = _random_poses(rng, count, 1.0, group)
+    return exact
+
+
+def _noisy(exact, is_odometry, noise: NoiseParams, rng, group: LieGroup) -> tuple[np.ndarray, np.ndarray]:
+    """``(measurements Z = Z_true · Exp(δ), information)``, ``δ ~ N(0, diag(σ²))`` in the tangent
+    order with the odometry's or the loop closures' σ."""
+    m, d = len(exact), group.dim
+    odometry, loop = _noise_arguments(noise, group)
+    sigmas = np.where(is_odometry[:, None], _sigmas(*odometry), _sigmas(*loop))
+    delta = rng.standard_normal((m, d)) * sigmas
+    if noise.noiseless:
+        delta[:] = 0.0
+    information = np.empty((m, d, d))
+    information[is_odometry] = _information(*odometry)
+    information[~is_odometry] = _information(*loop)
+    return exact @ group.exp(delta), information
 
 
 def _outlier_pairs(name: str, n: int, num_outliers: int, loop_candidates: np.ndarray, rng) -> np.ndarray:
@@ -531,46 +541,10 @@ def garage(
     step = perimeter / N
 
     rng = np.random.default_rng(seed)
-    # Segments in path order: each floor's laps, then (but for the last floor) its ramp.
-    arc, height, offset, lap_id = [], [], [], []
-    s0 = 0.0
-    for f in range(F):
-        for lap in range(laps):
-            arc.append(s0 + step * np.arange(N))
-            height.append(np.full(N, f * floor_height))
-            offset.append(np.full(N, rng.uniform(-lateral_jitter, lateral_jitter)))
-            lap_id.append(np.full(N, f * laps + lap))
-        if f < F - 1:
-            arc.append(s0 + step * np.arange(ramp))
-            height.append(f * floor_height + floor_height * np.arange(ramp) / ramp)
-            offset.append(np.zeros(ramp))
-            lap_id.append(np.full(ramp, -1))
-            s0 += step * ramp  # the next floor's laps start where the ramp ends
-    s = np.concatenate(arc) % perimeter
-    z = np.concatenate(height)
-    lateral = np.concatenate(offset)
-    lap_of = np.concatenate(lap_id)
-
-    # Point and heading on the rectangle (0,0) → (length,0) → (length,width) → (0,width) → (0,0).
-    corners = np.array([[0.0, 0.0], [length, 0.0], [length, width], [0.0, width]])
-    directions = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
-    bounds = np.array([0.0, length, length + width, 2 * length + width])
-    side = np.searchsorted(bounds, s, side="right") - 1
-    along = s - bounds[side]
-    xy = corners[side] + along[:, None] * directions[side]
-    inward = np.stack([-directions[side, 1], directions[side, 0]], axis=1)  # left of travel = inside
-    xy = xy + lateral[:, None] * inward
-    position = np.concatenate([xy, z[:, None]], axis=1)
+    s, z, lateral, lap_of = _garage_path(F, laps, N, ramp, step, floor_height, lateral_jitter, rng)
     climb = np.where(lap_of < 0, floor_height / max(ramp, 1), 0.0)
-    forward = np.concatenate([directions[side] * step, climb[:, None]], axis=1)
-    truth = se3.from_rotation_translation(_frames_from_axes(forward, np.tile([0.0, 0.0, 1.0], (len(s), 1))), position)
-
-    # Loop closures: lap l of a floor against lap l-1 of the same floor, offsets -1, 0, +1 (mod N).
-    start_of_lap = np.flatnonzero(np.r_[True, lap_of[1:] != lap_of[:-1]])
-    lap_starts = {int(lap_of[i]): int(i) for i in start_of_lap if lap_of[i] >= 0}
-    older = [lap_starts[f * laps + lap - 1] for f in range(F) for lap in range(1, laps)]
-    newer = [lap_starts[f * laps + lap] for f in range(F) for lap in range(1, laps)]
-    candidates = _ring_neighbours(np.array(older, np.int64), np.array(newer, np.int64), N)
+    truth = _on_rectangle(s % perimeter, z, lateral, climb, length, width, step)
+    candidates = _lap_neighbours(lap_of, F, laps, N)
     params = dict(
         shape="garage",
         floors=F,
@@ -585,6 +559,53 @@ def garage(
         seed=seed,
     )
     return _build(f"garage_{F}x{laps}x{N}", truth, candidates, noise, rng, params)
+
+
+def _garage_path(F: int, laps: int, N: int, ramp: int, step: float, floor_height: float, jitter: float, rng) -> tuple:
+    """``(arc length s, height z, lateral offset, lap index (−1 on ramps))`` per pose, ``(n,)`` each,
+    in path order: each floor's laps, then (but for the last floor) its ramp; one random lateral
+    offset per lap, uniform in ±``jitter``."""
+    arc, height, offset, lap_id = [], [], [], []
+    s0 = 0.0
+    for f in range(F):
+        for lap in range(laps):
+            arc.append(s0 + step * np.arange(N))
+            height.append(np.full(N, f * floor_height))
+            offset.append(np.full(N, rng.uniform(-jitter, jitter)))
+            lap_id.append(np.full(N, f * laps + lap))
+        if f < F - 1:
+            arc.append(s0 + step * np.arange(ramp))
+            height.append(f * floor_height + floor_height * np.arange(ramp) / ramp)
+            offset.append(np.zeros(ramp))
+            lap_id.append(np.full(ramp, -1))
+            s0 += step * ramp  # the next floor's laps start where the ramp ends
+    return np.concatenate(arc), np.concatenate(height), np.concatenate(offset), np.concatenate(lap_id)
+
+
+def _on_rectangle(s, z, lateral, climb, length: float, width: float, step: float) -> np.ndarray:
+    """``(n, 4, 4)`` poses at arc length ``s`` along the rectangle (0,0) → (length,0) → (length,width)
+    → (0,width) → (0,0), ``lateral`` to the left of travel (inwards), at height ``z``, facing along
+    the path and pitched by ``climb`` per step."""
+    corners = np.array([[0.0, 0.0], [length, 0.0], [length, width], [0.0, width]])
+    directions = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    bounds = np.array([0.0, length, length + width, 2 * length + width])
+    side = np.searchsorted(bounds, s, side="right") - 1
+    along = s - bounds[side]
+    xy = corners[side] + along[:, None] * directions[side]
+    inward = np.stack([-directions[side, 1], directions[side, 0]], axis=1)  # left of travel = inside
+    xy = xy + lateral[:, None] * inward
+    position = np.concatenate([xy, z[:, None]], axis=1)
+    forward = np.concatenate([directions[side] * step, climb[:, None]], axis=1)
+    return se3.from_rotation_translation(_frames_from_axes(forward, np.tile([0.0, 0.0, 1.0], (len(s), 1))), position)
+
+
+def _lap_neighbours(lap_of: np.ndarray, F: int, laps: int, N: int) -> np.ndarray:
+    """Loop-closure candidates: lap l of a floor against lap l−1 of the same floor, offsets −1, 0, +1 (mod N)."""
+    start_of_lap = np.flatnonzero(np.r_[True, lap_of[1:] != lap_of[:-1]])
+    lap_starts = {int(lap_of[i]): int(i) for i in start_of_lap if lap_of[i] >= 0}
+    older = [lap_starts[f * laps + lap - 1] for f in range(F) for lap in range(1, laps)]
+    newer = [lap_starts[f * laps + lap] for f in range(F) for lap in range(1, laps)]
+    return _ring_neighbours(np.array(older, np.int64), np.array(newer, np.int64), N)
 
 
 def manhattan(
