@@ -83,8 +83,14 @@ def sync_problem(graph: PoseGraph) -> SyncProblem:
     """SE-Sync's problem for ``graph`` (FIX lines play no part: SE-Sync's problem has none).
 
     Raises :class:`~posegraph.errors.GraphError` for a graph SE-Sync's problem is not defined on:
-    no edges, several connected components, or information whose κ or τ is not finite and positive.
+    a group other than SE(2)/SE(3) (Sim(3)), prior edges, no edges, several connected components, or information whose κ or τ is not finite and positive.
     """
+    if graph.group.name not in ("SE3", "SE2"):
+        raise GraphError(f"SE-Sync's problem is defined on SE(2) and SE(3) graphs, not {graph.group.name}: "
+                         "nothing to certify", graph.source)
+    if graph.priors is not None and len(graph.priors):
+        raise GraphError("the graph has prior edges, which SE-Sync's problem has no terms for: a certificate of "
+                         "the graph without them would not be one of this file's problem", graph.source)
     if graph.num_edges == 0:
         raise GraphError("the graph has no edges: nothing to certify", graph.source)
     count, _ = connected_components(graph)

@@ -104,3 +104,16 @@ def test_refuses_two_components_and_singular_information():
     information[1, 3:, 3:] = 0.0
     with pytest.raises(GraphError, match="κ and τ"):
         sync_problem(dataclasses.replace(graph, information=information))
+
+
+def test_a_similarity_graph_or_one_with_priors_is_refused_not_certified():
+    """SE-Sync's problem has no scale and no unary terms: certifying such a graph would certify another problem."""
+    from datasets.synthetic import monocular
+    from tests.solve.test_unary import chain_graph, make_priors
+
+    with pytest.raises(GraphError, match="SE\\(2\\) and SE\\(3\\)"):
+        sync_problem(monocular(laps=2, nodes_per_lap=20).graph)
+    rng = np.random.default_rng(5)
+    with pytest.raises(GraphError, match="prior edges"):
+        sync_problem(chain_graph(rng, SE3, priors=make_priors(rng, SE3, 6)))
+    sync_problem(chain_graph(rng, SE3))  # the same chain without priors is SE-Sync's problem
