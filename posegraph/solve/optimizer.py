@@ -345,7 +345,9 @@ class _System:
             if self.blocks.priors is not None:
                 add_prior_hessian(self.run.pattern, data, self.blocks.priors)
         del blocks
-        self.blocks.release_hessian_blocks()  # assembled: H alone is used from here on
+        # Assembled: H and g alone are used from here on. The edge blocks (Jacobian factors, adjoints,
+        # per-edge gradients: ~600 bytes an SE(3) edge) go before the factorisation needs the memory.
+        self.blocks = None
         return data if self.run.pinned is None else self.run.pinned.decouple(data)
 
 

@@ -64,11 +64,11 @@ class HessianPattern:
     entry_columns: np.ndarray
     """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
     hessian_positions: np.ndarray
-    """``(3, d²·m)`` intp: row ``k`` holds the position in ``data`` of each entry of the ``k``-th
+    """``(3, d²·m)`` int32 (int64 past 2³¹ stored entries): row ``k`` holds the position in ``data`` of each entry of the ``k``-th
     per-edge blocks ``(m, d, d)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
     entries that are not stored."""
     gradient_positions: np.ndarray
-    """``(2d·m,)`` intp: row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
+    """``(2d·m,)`` int32 (int64 past 2³¹): row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
     ``(m, 2, d)`` stacking ``[g_i, g_j]`` of each edge; ``dp`` for held vertices' entries."""
     block_size: int = BLOCK
     """Block size ``d``: the tangent dimension of the graph's group (6 for SE(3))."""
@@ -121,7 +121,7 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int
     hessian_positions = _hessian_positions(ci, cj, blocks, layout, p, d)
     gradient_table = np.full((p + 1, d), d * p, dtype=np.intp)  # row of g of entry q of vertex c
     gradient_table[:p] = d * np.arange(p)[:, None] + np.arange(d)[None, :]
-    gradient_positions = np.stack([gradient_table[ci], gradient_table[cj]], axis=1).reshape(-1)
+    gradient_positions = _narrowest(np.stack([gradient_table[ci], gradient_table[cj]], axis=1).reshape(-1), d * p)
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,
@@ -233,7 +233,14 @@ def _hessian_positions(ci, cj, blocks: _Blocks, layout: _Layout, p: int, d: int)
         a, b = ci[both], cj[both]
         which_block[both] = np.searchsorted(blocks.key, np.minimum(a, b) * blocks.stride + np.maximum(a, b)) + k * (a < b)
     positions[2] = off_table[which_block]
-    return positions.reshape(3, -1)
+    return _narrowest(positions.reshape(3, -1), nnz)
+
+
+def _narrowest(positions: np.ndarray, largest: int) -> np.ndarray:
+    """``positions`` as int32 when every value up to ``largest`` fits (all pose graphs below ~10⁷
+    edges): half the memory of the scatter maps, which live as long as the analysis (36 positions an
+    SE(3) edge and block, 864 bytes an edge in int64). ``np.bincount`` widens a slice at a time."""
+    return positions.astype(np.int32) if largest < np.iinfo(np.int32).max else positions
 
 
 def hessian_values(pattern: HessianPattern, blocks) -> np.ndarray:
