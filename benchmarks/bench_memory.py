@@ -1,0 +1,159 @@
+"""Memory per pose of ``posegraph optimize`` on large 3D graphs, by phase and end to end.
+
+    python -m benchmarks.bench_memory make sphere 200000 -o /tmp/big/s200k.g2o
+    python -m benchmarks.bench_memory make route 1000000 -o /tmp/big/r1m.g2o [--loop-density 0.3]
+    python -m benchmarks.bench_memory phases /tmp/big/s200k.g2o        # RSS per phase, in one process
+    python -m benchmarks.bench_memory run /tmp/big/r1m.g2o [/tmp/big/s200k.g2o …]   # whole processes
+
+``make``: a synthetic graph (:mod:`datasets.synthetic`, seed 0, default noise). ``sphere``: g2o's
+create_sphere layout, 4 edges a pose, a closed surface whose Cholesky factor grows as n log n.
+``route``: :func:`datasets.synthetic.garage` laid out as a city route — 20 floors (separate
+districts joined by a ramp), 5 laps each of ``n / 100`` poses round a 2 km × 0.5 km block, each lap
+tied to the one before by loop closures (``--loop-density`` of the candidates kept): a long
+trajectory with local revisits, as a lidar map of many sessions, whose factor stays small.
+
+``phases``: one process reads, initialises (chordal) and optimises, printing its resident memory
+and the peak since the last mark (the kernel's high-water mark, reset through
+``/proc/self/clear_refs``) after each phase and each iteration, and the largest numpy arrays
+alive at the first iteration (tracemalloc; CHOLMOD's factor is the rest).
+
+``run``: ``python cli.py optimize IN -o OUT --report R.json -q`` under ``/usr/bin/time -v``:
+wall seconds, peak resident memory (GiB and bytes a pose), final cost, iterations. Figures are
+recorded in ``docs/benchmarks.md`` ("Memory per pose").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+ROUTE_FLOORS, ROUTE_LAPS = 20, 5
+"""The route's districts and laps of each: ``n / 100`` poses a lap."""
+
+
+def make(shape: str, size: int, output: Path, loop_density: float) -> None:
+    """Write ``shape`` of about ``size`` poses to ``output`` (g2o)."""
+    from datasets import synthetic
+    from posegraph.io.g2o import write_g2o
+
+    noise = synthetic.NoiseParams(loop_closure_density=loop_density)
+    if shape == "sphere":
+        dataset = synthetic.generate("sphere", size, noise=noise, seed=0)
+    else:
+        per_lap = max(4, size // (ROUTE_FLOORS * ROUTE_LAPS))
+        dataset = synthetic.garage(floors=ROUTE_FLOORS, laps_per_floor=ROUTE_LAPS, nodes_per_lap=per_lap,
+                                   length=2000.0, width=500.0, floor_height=10.0, noise=noise, seed=0)  # fmt: skip
+    write_g2o(output, dataset.graph)
+    graph = dataset.graph
+    print(f"{output}: {graph.num_vertices} poses, {graph.num_edges} edges ({graph.num_edges / graph.num_vertices:.2f} a pose)")
+
+
+def _memory() -> tuple[float, float]:
+    """``(resident, peak since the last reset)`` of this process, MiB."""
+    fields = dict(line.split(":", 1) for line in open("/proc/self/status") if ":" in line)
+    return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
+
+
+def _mark(what: str, poses: int | None = None) -> None:
+    resident, peak = _memory()
+    per_pose = f"  ({peak * 2**20 / poses / 1000:.1f} kB a pose)" if poses else ""
+    print(f"{what:32s} resident {resident:9.0f} MiB   peak {peak:9.0f} MiB{per_pose}", flush=True)
+    Path("/proc/self/clear_refs").write_text("5")
+
+
+def phases(path: Path) -> None:
+    """Resident memory after each phase of one optimisation, in this process (module docstring)."""
+    import gc
+    import tracemalloc
+
+    _mark("start")
+    from posegraph.init.chordal import chordal_initialization
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve import SolverParams, optimize
+
+    _mark("imports")
+    graph = read_g2o(path)
+    n = graph.num_vertices
+    _mark(f"read ({n} poses)", n)
+    start = chordal_initialization(graph)
+    gc.collect()
+    _mark("chordal start", n)
+    tracemalloc.start(2)
+
+    def each_iteration(record) -> None:
+        if record.iteration == 1:
+            _largest_arrays(tracemalloc.take_snapshot())
+        _mark(f"iteration {record.iteration}", n)
+
+    optimize(graph, initial=start, params=SolverParams(callback=each_iteration))
+    _mark("optimised", n)
+
+
+def _largest_arrays(snapshot, count: int = 6) -> None:
+    """The numpy allocations alive, largest first, by the line that made them."""
+    total = sum(stat.size for stat in snapshot.statistics("filename"))
+    print(f"    numpy and Python objects alive: {total / 2**20:.0f} MiB; largest:")
+    for stat in snapshot.statistics("lineno")[:count]:
+        frame = stat.traceback[0]
+        print(f"    {stat.size / 2**20:8.0f} MiB  {Path(frame.filename).name}:{frame.lineno}")
+
+
+def run(paths: list[Path]) -> list[dict]:
+    """Whole ``optimize`` processes under ``/usr/bin/time -v``, one after another."""
+    rows = []
+    for path in paths:
+        with tempfile.TemporaryDirectory() as folder:
+            out, report = Path(folder) / "out.g2o", Path(folder) / "r.json"
+            argv = ["/usr/bin/time", "-v", sys.executable, "cli.py", "optimize", str(path), "-o", str(out),
+                    "--report", str(report), "-q"]  # fmt: skip
+            begin = time.perf_counter()
+            done = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
+            wall = time.perf_counter() - begin
+            if done.returncode != 0:
+                print(f"{path}: exit {done.returncode}: {done.stderr.strip().splitlines()[-1:]}")
+                continue
+            peak_kib = int(next(line for line in done.stderr.splitlines() if "Maximum resident" in line).split()[-1])
+            data = json.loads(report.read_text())
+        rows.append(_row(path, data, wall, peak_kib))
+        print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def _row(path: Path, report: dict, wall: float, peak_kib: int) -> dict:
+    n = report["num_vertices"]
+    return {
+        "file": path.name, "poses": n, "edges": report["num_edges"], "wall_s": round(wall, 1),
+        "peak_gib": round(peak_kib / 2**20, 2), "kb_per_pose": round(peak_kib * 1024 / n / 1000, 1),
+        "final_cost": report["final_cost"], "iterations": report["iterations"],
+        "phases_s": {k: round(v, 2) for k, v in report["seconds"].items() if k != "solver"},
+    }  # fmt: skip
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_memory", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    maker = commands.add_parser("make", help="write a synthetic graph")
+    maker.add_argument("shape", choices=("sphere", "route"))
+    maker.add_argument("size", type=int)
+    maker.add_argument("-o", "--output", type=Path, required=True)
+    maker.add_argument("--loop-density", type=float, default=1.0, help="share of loop-closure candidates kept")
+    commands.add_parser("phases", help="memory per phase in one process").add_argument("path", type=Path)
+    commands.add_parser("run", help="whole optimize processes").add_argument("paths", type=Path, nargs="+")
+    args = parser.parse_args(argv)
+    if args.command == "make":
+        make(args.shape, args.size, args.output, args.loop_density)
+    elif args.command == "phases":
+        phases(args.path)
+    else:
+        run(args.paths)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
