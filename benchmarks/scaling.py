@@ -276,34 +276,28 @@ def plot(points: list[dict], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
 
     good = [p for p in points if "error" not in p]
     keys = sorted({series_key(p) for p in good})
     looks = dict(zip(keys, [("o", "-"), ("s", "--"), ("^", ":"), ("D", "-."), ("v", (0, (1, 3))), ("P", (0, (5, 1)))]))
     fig, axes = plt.subplots(2, 2, figsize=(13, 10))
+    for ax, panel in zip(axes.flat, _panels(good)):
+        _draw_panel(ax, good, keys, looks, *panel)
+    ax = axes[1, 0]
+    ax.axhline(MACHINE_MEMORY_GB, color="r", lw=1)
+    ax.text(min((p["edges"] for p in good), default=1), MACHINE_MEMORY_GB * 0.75, f"{MACHINE_MEMORY_GB} GB: this machine", color="r", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
-    def series(key, value):
-        pts = sorted((p for p in good if series_key(p) == key), key=lambda p: p["edges"])
-        return np.array([p["edges"] for p in pts], float), np.array([value(p) for p in pts], float)
 
-    def draw(ax, quantities, title, ylabel, reference=None, loc="upper left"):
-        for key in keys:
-            marker, style = looks[key]
-            for label, colour, value in quantities:
-                x, y = series(key, value)
-                if len(x):
-                    ax.plot(x, y, marker=marker, ls=style, color=colour, ms=4)
-        handles = [Line2D([], [], color=c, lw=2, label=label) for label, c, _ in quantities]
-        if reference is not None:
-            x = np.array([min(p["edges"] for p in good), max(p["edges"] for p in good)])
-            ax.plot(x, reference * x / x[0], color="0.6", lw=1, ls="-.")
-            handles.append(Line2D([], [], color="0.6", lw=1, ls="-.", label="∝ edges"))
-        handles += [Line2D([], [], color="k", marker=looks[k][0], ls=looks[k][1], label=k) for k in keys]
-        ax.legend(handles=handles, fontsize=7, loc=loc)
-        ax.set(xscale="log", yscale="log", xlabel="edges", ylabel=ylabel, title=title)
-        ax.grid(True, which="major", alpha=0.3)
+def _per_iteration(p: dict, *keys) -> float:
+    return sum(p["optimize_split"][k] for k in keys) / max(1, p["iterations"])
 
+
+def _panels(good: list[dict]) -> list[tuple]:
+    """``(quantities, title, ylabel, reference, legend place)`` of the four panels, row by row;
+    ``quantities``: ``(label, colour, value of a point)``; ``reference``: a line ∝ edges from there."""
     phases = [
         ("read", "C0", lambda p: p["seconds"]["read"]),
         ("initialise (chordal)", "C1", lambda p: p["seconds"]["initialize"]),
@@ -311,32 +305,18 @@ def plot(points: list[dict], path: Path) -> None:
         ("write", "C3", lambda p: p["seconds"]["write"]),
         ("whole process", "k", lambda p: p["wall"]),
     ]
-    smallest_read = min((p["seconds"]["read"] for p in good), default=1e-3)
-    draw(axes[0, 0], phases, "Seconds per phase (one process per point)", "seconds", reference=smallest_read)
-
-    def per_iteration(p, *keys_):
-        return sum(p["optimize_split"][k] for k in keys_) / max(1, p["iterations"])
-
     inside = [
-        ("linearise + assemble, per iteration", "C4", lambda p: per_iteration(p, "linearize", "assemble")),
+        ("linearise + assemble, per iteration", "C4", lambda p: _per_iteration(p, "linearize", "assemble")),
         ("factorise, per factorisation", "C5", lambda p: p["optimize_split"]["factorize"] / max(1, p["factorizations"])),
-        ("triangular solves + cost, per iteration", "C6", lambda p: per_iteration(p, "solve")),
+        ("triangular solves + cost, per iteration", "C6", lambda p: _per_iteration(p, "solve")),
         ("symbolic setup (once)", "C7", lambda p: p["optimize_split"]["setup"]),
     ]
-    smallest_lin = min((per_iteration(p, "linearize", "assemble") for p in good), default=1e-3)
-    draw(axes[0, 1], inside, "Inside the optimiser", "seconds", reference=smallest_lin)
-
     memory = [
         ("read", "C0", lambda p: p["peak_bytes"]["read"] / 2**30),
         ("initialise", "C1", lambda p: p["peak_bytes"]["initialize"] / 2**30),
         ("optimise", "C2", lambda p: p["peak_bytes"]["optimize"] / 2**30),
         ("write", "C3", lambda p: p["peak_bytes"]["write"] / 2**30),
     ]
-    ax = axes[1, 0]
-    draw(ax, memory, "Peak resident memory during each phase", "GiB", loc="lower right")
-    ax.axhline(MACHINE_MEMORY_GB, color="r", lw=1)
-    ax.text(min((p["edges"] for p in good), default=1), MACHINE_MEMORY_GB * 0.75, f"{MACHINE_MEMORY_GB} GB: this machine", color="r", fontsize=8)
-
     fill = [
         ("nnz(L) / nnz(H), AMD", "C8", lambda p: p["fill"]["amd"]["nnz_L"] / p["fill"]["nnz_H"]),
         ("nnz(L) / nnz(H), METIS", "C9", lambda p: p["fill"]["metis"]["nnz_L"] / p["fill"]["nnz_H"]),
@@ -344,11 +324,36 @@ def plot(points: list[dict], path: Path) -> None:
         ("flops / (1000·edges), AMD", "C1", lambda p: p["fill"]["amd"]["flops_scalar"] / (1000 * p["edges"])),
         ("flops / (1000·edges), nested dissection", "C4", lambda p: p["fill"]["nesdis"]["flops_scalar"] / (1000 * p["edges"])),
     ]
-    draw(axes[1, 1], fill, "Why: fill-in of the Cholesky factor (CHOLMOD analysis)", "ratio")
+    smallest_read = min((p["seconds"]["read"] for p in good), default=1e-3)
+    smallest_lin = min((_per_iteration(p, "linearize", "assemble") for p in good), default=1e-3)
+    return [
+        (phases, "Seconds per phase (one process per point)", "seconds", smallest_read, "upper left"),
+        (inside, "Inside the optimiser", "seconds", smallest_lin, "upper left"),
+        (memory, "Peak resident memory during each phase", "GiB", None, "lower right"),
+        (fill, "Why: fill-in of the Cholesky factor (CHOLMOD analysis)", "ratio", None, "upper left"),
+    ]
 
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+
+def _draw_panel(ax, good: list[dict], keys: list, looks: dict, quantities, title, ylabel, reference, loc) -> None:
+    """One panel: each quantity of each series against edges, log-log, with its legend."""
+    from matplotlib.lines import Line2D
+
+    for key in keys:
+        marker, style = looks[key]
+        pts = sorted((p for p in good if series_key(p) == key), key=lambda p: p["edges"])
+        x = np.array([p["edges"] for p in pts], float)
+        for label, colour, value in quantities:
+            if len(x):
+                ax.plot(x, np.array([value(p) for p in pts], float), marker=marker, ls=style, color=colour, ms=4)
+    handles = [Line2D([], [], color=c, lw=2, label=label) for label, c, _ in quantities]
+    if reference is not None:
+        x = np.array([min(p["edges"] for p in good), max(p["edges"] for p in good)])
+        ax.plot(x, reference * x / x[0], color="0.6", lw=1, ls="-.")
+        handles.append(Line2D([], [], color="0.6", lw=1, ls="-.", label="∝ edges"))
+    handles += [Line2D([], [], color="k", marker=looks[k][0], ls=looks[k][1], label=k) for k in keys]
+    ax.legend(handles=handles, fontsize=7, loc=loc)
+    ax.set(xscale="log", yscale="log", xlabel="edges", ylabel=ylabel, title=title)
+    ax.grid(True, which="major", alpha=0.3)
 
 
 def markdown_table(points: list[dict]) -> str:

@@ -99,35 +99,20 @@ def read_g2o(
         A file whose measurements are largely of landmarks (:mod:`posegraph.io.g2o_landmarks`) is
         refused unless this is True; then its landmark lines are skipped like other unread tags.
 
-    Returns
-    -------
-    PoseGraph
-        ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
-        (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information
-        (m,6,6)`` in ``[ω; v]`` order (g2o's ``[t; R]`` permuted, as
-        ``gtsam.readG2o`` does), ``fixed (n,)``, ``source`` (the absolute
-        path read), ``edge_lines (m,)`` (each edge's line in the file) and
-        ``group`` SE(3). For a 2D file, ``group`` is
-        :data:`~posegraph.lie.group.SE2`, poses and measurements are ``(·,3,3)`` and the
-        information ``(m,3,3)`` in ``[x, y, θ]`` order (g2o's and se(2)'s, unpermuted).
+    Returns a :class:`PoseGraph`: ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
+    (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information (m,6,6)`` in ``[ω; v]`` order
+    (g2o's ``[t; R]`` permuted, as ``gtsam.readG2o`` does), ``fixed (n,)``, ``source`` (the absolute
+    path read), ``edge_lines (m,)`` (each edge's line) and ``group`` SE(3); for a 2D file
+    :data:`~posegraph.lie.group.SE2`, ``(·,3,3)`` poses and measurements and ``(m,3,3)`` information
+    in ``[x, y, θ]`` order (g2o's and se(2)'s, unpermuted).
 
-    Raises
-    ------
-    G2oFormatError
-        A malformed line or an invalid number (see ``docs/g2o.md``).
-    GraphError
-        Neither vertices nor edges, no edges (unless ``require_edges=False``),
-        no vertices with ``require_edges=False``, a duplicate vertex id, an
-        edge or ``FIX`` naming a missing vertex, or a self-loop.
-    InputError
-        The file cannot be opened, or is not text.
-
-    Warns
-    -----
-    InputWarning
-        Skipped tags, normalised quaternions, vertices created for a file
-        without vertex lines, repaired or singular information matrices,
-        several connected components (one warning each, after all checks pass).
+    Raises :class:`G2oFormatError` for a malformed line or an invalid number (``docs/g2o.md``),
+    :class:`GraphError` for neither vertices nor edges, no edges (unless ``require_edges=False``), no
+    vertices with ``require_edges=False``, a duplicate vertex id, an edge or ``FIX`` naming a missing
+    vertex, or a self-loop; :class:`InputError` when the file cannot be opened or is not text. Warns
+    (:class:`InputWarning`, one each, after all checks pass) of skipped tags, normalised quaternions,
+    vertices created for a file without vertex lines, repaired or singular information matrices,
+    several connected components.
     """
     name = os.fspath(path)
     if name == "-":  # standard input, as g2o's and Unix tools' "-"
