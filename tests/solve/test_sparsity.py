@@ -156,3 +156,22 @@ def test_lower_matvec_is_the_stored_lower_triangle_times_a_vector(seed):
     x = rng.normal(size=pattern.dimension)
     expected = lower_csc(pattern, data).toarray() @ x
     np.testing.assert_allclose(lower_matvec(pattern, data, x), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_scatter_maps_are_int32_and_assemble_as_int64_ones_do():
+    """The 32-bit maps (half the memory) give bit for bit the values of 64-bit ones, and a system too
+    large for them keeps 64 bits."""
+    from dataclasses import replace
+
+    from posegraph.solve.sparsity import _narrowest
+
+    rng = np.random.default_rng(11)
+    edge_from, edge_to = random_graph(rng, 10, 30)
+    pattern = analyze_pattern(10, edge_from, edge_to, np.arange(10) == 0)
+    assert pattern.hessian_positions.dtype == np.int32 and pattern.gradient_positions.dtype == np.int32
+    wide = replace(pattern, hessian_positions=pattern.hessian_positions.astype(np.int64),
+                   gradient_positions=pattern.gradient_positions.astype(np.int64))
+    blocks, grads = random_blocks(rng, 30), rng.normal(size=(30, 2, 6))
+    np.testing.assert_array_equal(hessian_values(pattern, blocks), hessian_values(wide, blocks))
+    np.testing.assert_array_equal(gradient_values(pattern, grads), gradient_values(wide, grads))
+    assert _narrowest(np.arange(3), 2**31).dtype == np.arange(3).dtype
