@@ -172,6 +172,9 @@ def _print_table(args, ours: dict, theirs, gtsam_init: str, comparison: dict, ag
         print(f"{key:<{width}}{ours_row[key]:<{col}}{theirs_row[key]}")
     print(f"final cost relative difference: {comparison['final_cost_relative_difference']:.3e} "
           f"(tolerance {args.cost_tolerance:g}): " + ("agree" if agree else "DISAGREE"))
+    if not agree and graph.group.name == "SIM3" and ours["result"].final_cost < theirs.final_cost:
+        print("  (Sim(3): gtsam's BetweenFactorSimilarity3 uses an identity Logmap derivative, so its LM stops "
+              "above the optimum it shares with posegraph; docs/sim3.md)")
     print(f"largest rotation difference:    {comparison['max_rotation_difference_deg']:.3e} deg")
     print(f"largest translation difference: {comparison['max_translation_difference']:.3e}")
 
