@@ -17,6 +17,10 @@ and the peak since the last mark (the kernel's high-water mark, reset through
 ``/proc/self/clear_refs``) after each phase and each iteration, and the largest numpy arrays
 alive at the first iteration (tracemalloc; CHOLMOD's factor is the rest).
 
+``pcg``: how far conjugate gradients (block-Jacobi preconditioner, scipy) are from replacing the
+factorisation, which is what fills memory on a sphere: iterations and seconds to solve the first
+Gauss-Newton system at the chordal start to a relative residual of 1e-4 and 1e-8.
+
 ``run``: ``python cli.py optimize IN -o OUT --report R.json -q`` under ``/usr/bin/time -v``:
 wall seconds, peak resident memory (GiB and bytes a pose), final cost, iterations. Figures are
 recorded in ``docs/benchmarks.md`` ("Memory per pose").
@@ -104,6 +108,37 @@ def _largest_arrays(snapshot, count: int = 6) -> None:
         print(f"    {stat.size / 2**20:8.0f} MiB  {Path(frame.filename).name}:{frame.lineno}")
 
 
+def pcg(path: Path) -> None:
+    """Iterations and seconds of block-Jacobi PCG on the first Gauss-Newton system (module docstring)."""
+    import numpy as np
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as sla
+
+    from posegraph.init.chordal import chordal_initialization
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve.linearize import linearize
+    from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc
+
+    graph = read_g2o(path)
+    d = graph.group.dim
+    held = np.arange(graph.num_vertices) == 0
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, d)
+    blocks = linearize(chordal_initialization(graph), graph)
+    lower = lower_csc(pattern, hessian_values(pattern, blocks.hessian_blocks))
+    hessian = (lower + sp.tril(lower, -1).T).tocsr()
+    rhs = -gradient_values(pattern, blocks.gradient)
+    diagonal = np.stack([hessian[k * d:(k + 1) * d, k * d:(k + 1) * d].toarray() for k in range(hessian.shape[0] // d)])
+    inverse = np.linalg.inv(diagonal)
+    preconditioner = sla.LinearOperator(hessian.shape, matvec=lambda v: (inverse @ v.reshape(-1, d, 1)).ravel())
+    for rtol in (1e-4, 1e-8):
+        count = [0]
+        begin = time.perf_counter()
+        _, info = sla.cg(hessian, rhs, rtol=rtol, maxiter=50_000, M=preconditioner,
+                         callback=lambda _: count.__setitem__(0, count[0] + 1))  # fmt: skip
+        print(f"{path.name}: PCG (block Jacobi) to relative residual {rtol:g}: {count[0]} iterations, "
+              f"{time.perf_counter() - begin:.1f} s" + ("" if info == 0 else f" (stopped: info {info})"))
+
+
 def run(paths: list[Path]) -> list[dict]:
     """Whole ``optimize`` processes under ``/usr/bin/time -v``, one after another."""
     rows = []
@@ -144,12 +179,15 @@ def main(argv=None) -> int:
     maker.add_argument("-o", "--output", type=Path, required=True)
     maker.add_argument("--loop-density", type=float, default=1.0, help="share of loop-closure candidates kept")
     commands.add_parser("phases", help="memory per phase in one process").add_argument("path", type=Path)
+    commands.add_parser("pcg", help="PCG instead of the factorisation: iterations").add_argument("path", type=Path)
     commands.add_parser("run", help="whole optimize processes").add_argument("paths", type=Path, nargs="+")
     args = parser.parse_args(argv)
     if args.command == "make":
         make(args.shape, args.size, args.output, args.loop_density)
     elif args.command == "phases":
         phases(args.path)
+    elif args.command == "pcg":
+        pcg(args.path)
     else:
         run(args.paths)
     return 0
