@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.graph import PoseGraph, vertex_ranks
 from posegraph.lie import se2, se3, so2, so3
 from posegraph.lie.group import SE2, SE3, SIM3_G2O, LieGroup
 
@@ -764,8 +764,7 @@ def _free_pairs(rng: np.random.Generator, graph: PoseGraph, count: int) -> np.nd
     """``(count, 2)`` distinct vertex pairs (older, newer by id), none an edge of ``graph`` nor
     neighbours in id order (those are odometry), in the order drawn."""
     n = graph.num_vertices
-    rank = np.empty(n, np.int64)
-    rank[np.argsort(graph.ids, kind="stable")] = np.arange(n)
+    rank = vertex_ranks(graph)
     by_rank = np.argsort(graph.ids, kind="stable")
     taken = np.unique(np.sort(np.stack([rank[graph.edge_from], rank[graph.edge_to]], 1), axis=1) @ np.array([n, 1]))
     taken_older, taken_newer = np.divmod(taken, n)

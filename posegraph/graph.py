@@ -32,7 +32,7 @@ import numpy as np
 from posegraph.lie.group import SE3, LieGroup
 from posegraph.priors import Priors, anchored_components
 
-__all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
+__all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "vertex_ranks", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
 
 def edge_checksum(graph: "PoseGraph") -> int:
@@ -169,12 +169,18 @@ class PoseGraph:
         return odometry
 
 
-def neighbour_pairs(graph: PoseGraph) -> np.ndarray:
-    """``(m,)`` int64: for an edge whose vertices are neighbours in id order
-    (``|rank(id_i) − rank(id_j)| = 1``, ``rank`` the position in the sorted ids), the lower rank
-    of the two, which names the pair; −1 for every other edge."""
+def vertex_ranks(graph: PoseGraph) -> np.ndarray:
+    """``(n,)`` int64: each vertex's position in the sorted ids (ties in file order)."""
     rank = np.empty(graph.num_vertices, dtype=np.int64)
     rank[np.argsort(graph.ids, kind="stable")] = np.arange(graph.num_vertices)
+    return rank
+
+
+def neighbour_pairs(graph: PoseGraph) -> np.ndarray:
+    """``(m,)`` int64: for an edge whose vertices are neighbours in id order
+    (``|rank(id_i) − rank(id_j)| = 1``, :func:`vertex_ranks`), the lower rank of the two, which
+    names the pair; −1 for every other edge."""
+    rank = vertex_ranks(graph)
     rank_from, rank_to = rank[graph.edge_from], rank[graph.edge_to]
     return np.where(np.abs(rank_from - rank_to) == 1, np.minimum(rank_from, rank_to), -1)
 

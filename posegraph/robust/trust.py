@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, neighbour_pairs
+from posegraph.graph import PoseGraph, neighbour_pairs, vertex_ranks
 
 __all__ = [
     "parallel_odometry_mask", "best_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",
@@ -79,8 +79,7 @@ def contradicted_odometry(graph: PoseGraph, known: np.ndarray, kept: np.ndarray,
     returns there), and the random wrong loop closures across it, all rejected, say nothing of its
     odometry. A wrong edge in the middle of the trajectory leaves kept edges on both sides of it.
     """
-    rank = np.empty(graph.num_vertices, dtype=np.int64)
-    rank[np.argsort(graph.ids, kind="stable")] = np.arange(graph.num_vertices)
+    rank = vertex_ranks(graph)
     low = np.minimum(rank[graph.edge_from], rank[graph.edge_to])
     high = np.maximum(rank[graph.edge_from], rank[graph.edge_to])
     candidates = ~np.asarray(known, dtype=bool)
