@@ -71,7 +71,7 @@ def _mark(what: str, poses: int | None = None) -> None:
     Path("/proc/self/clear_refs").write_text("5")
 
 
-def phases(path: Path) -> None:
+def phases(path: Path, linear_solver: str = "auto") -> None:
     """Resident memory after each phase of one optimisation, in this process (module docstring)."""
     import gc
     import tracemalloc
@@ -85,7 +85,7 @@ def phases(path: Path) -> None:
     graph = read_g2o(path)
     n = graph.num_vertices
     _mark(f"read ({n} poses)", n)
-    start = chordal_initialization(graph)
+    start = chordal_initialization(graph, linear_solver=linear_solver)
     gc.collect()
     _mark("chordal start", n)
     tracemalloc.start(2)
@@ -95,7 +95,7 @@ def phases(path: Path) -> None:
             _largest_arrays(tracemalloc.take_snapshot())
         _mark(f"iteration {record.iteration}", n)
 
-    optimize(graph, initial=start, params=SolverParams(callback=each_iteration))
+    optimize(graph, initial=start, params=SolverParams(callback=each_iteration, linear_solver=linear_solver))
     _mark("optimised", n)
 
 
@@ -139,14 +139,14 @@ def pcg(path: Path) -> None:
               f"{time.perf_counter() - begin:.1f} s" + ("" if info == 0 else f" (stopped: info {info})"))
 
 
-def run(paths: list[Path]) -> list[dict]:
+def run(paths: list[Path], linear_solver: str = "auto") -> list[dict]:
     """Whole ``optimize`` processes under ``/usr/bin/time -v``, one after another."""
     rows = []
     for path in paths:
         with tempfile.TemporaryDirectory() as folder:
             out, report = Path(folder) / "out.g2o", Path(folder) / "r.json"
             argv = ["/usr/bin/time", "-v", sys.executable, "cli.py", "optimize", str(path), "-o", str(out),
-                    "--report", str(report), "-q"]  # fmt: skip
+                    "--report", str(report), "-q", "--linear-solver", linear_solver]  # fmt: skip
             begin = time.perf_counter()
             done = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
             wall = time.perf_counter() - begin
@@ -178,18 +178,22 @@ def main(argv=None) -> int:
     maker.add_argument("size", type=int)
     maker.add_argument("-o", "--output", type=Path, required=True)
     maker.add_argument("--loop-density", type=float, default=1.0, help="share of loop-closure candidates kept")
-    commands.add_parser("phases", help="memory per phase in one process").add_argument("path", type=Path)
+    phase = commands.add_parser("phases", help="memory per phase in one process")
+    phase.add_argument("path", type=Path)
     commands.add_parser("pcg", help="PCG instead of the factorisation: iterations").add_argument("path", type=Path)
-    commands.add_parser("run", help="whole optimize processes").add_argument("paths", type=Path, nargs="+")
+    whole = commands.add_parser("run", help="whole optimize processes")
+    whole.add_argument("paths", type=Path, nargs="+")
+    for command in (phase, whole):
+        command.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy", "pcg"), default="auto")
     args = parser.parse_args(argv)
     if args.command == "make":
         make(args.shape, args.size, args.output, args.loop_density)
     elif args.command == "phases":
-        phases(args.path)
+        phases(args.path, args.linear_solver)
     elif args.command == "pcg":
         pcg(args.path)
     else:
-        run(args.paths)
+        run(args.paths, args.linear_solver)
     return 0
 
 

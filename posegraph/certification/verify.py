@@ -24,6 +24,7 @@ the Riemannian staircase escapes the saddle.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -62,18 +63,23 @@ class CertificateMatrix:
     data: np.ndarray
     """``(nnz,)`` CSC values of the lower triangle of S."""
 
+    @cached_property
+    def _columns(self) -> np.ndarray:
+        """``(nnz,)`` column of each stored entry (:attr:`HessianPattern.entry_columns`, made once here)."""
+        return self.pattern.entry_columns
+
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``S x`` for ``x`` ``((d+1)n,)`` (lower triangle, its transpose, less the diagonal counted twice)."""
-        p, dim = self.pattern, self.pattern.dimension
-        lower = np.bincount(p.indices, weights=self.data * x[p.entry_columns], minlength=dim)
-        upper = np.bincount(p.entry_columns, weights=self.data * x[p.indices], minlength=dim)
+        p, dim, columns = self.pattern, self.pattern.dimension, self._columns
+        lower = np.bincount(p.indices, weights=self.data * x[columns], minlength=dim)
+        upper = np.bincount(columns, weights=self.data * x[p.indices], minlength=dim)
         return lower + upper - self.data[p.diagonal] * x
 
     def dense(self) -> np.ndarray:
         """S as a dense array (small graphs, tests)."""
         p, dim = self.pattern, self.pattern.dimension
         out = np.zeros((dim, dim))
-        out[p.indices, p.entry_columns] = self.data
+        out[p.indices, self._columns] = self.data
         return out + np.tril(out, -1).T
 
 

@@ -22,9 +22,10 @@ def solver_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--absolute-tolerance", type=non_negative_float, default=None, metavar="TOL",
                    help="stop when an iteration lowers the cost by at most this much "
                         "(default: the solver's, 1e-12)")
-    p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy"), default="auto",
-                   help="sparse solver: CHOLMOD (from the cvxopt wheel) or scipy's SuperLU; auto picks "
-                        "CHOLMOD when cvxopt is installed")
+    p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy", "pcg"), default="auto",
+                   help="sparse solver: CHOLMOD (from the cvxopt wheel), scipy's SuperLU, or pcg "
+                        "(multigrid-preconditioned conjugate gradients, no factorisation: memory linear "
+                        "in the graph; needs pyamg); auto picks CHOLMOD when cvxopt is installed")
 
 
 def solver_params(args, callback=None):

@@ -42,11 +42,12 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph import cholmod as cholmod_library
+from posegraph import multigrid
 from posegraph.cholmod import NotPositiveDefiniteError
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
-LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
+LINEAR_SOLVERS = ("auto", "cholmod", "scipy", "pcg")
 
 
 class RelativeLeastSquares:
@@ -56,14 +57,17 @@ class RelativeLeastSquares:
     ----------
     held : (n,) bool — vertices whose block is given, not solved for.
     edge_from, edge_to : (m,) int — vertex indices ``i``, ``j`` of each edge.
-    linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"``.
+    linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"`` | ``"pcg"``.
         ``"cholmod"``: CHOLMOD from cvxopt (:func:`posegraph.cholmod.block_cholesky`: supernodal
         Cholesky, the vertex graph ordered as in the solver, symbolic analysis kept between
         solves); ``"scipy"``: SuperLU in symmetric mode (minimum-degree ordering on AᵀA+A, no
         off-diagonal pivoting — on an SPD matrix that is Cholesky in disguise), needing nothing
         beyond scipy; ``"auto"``: CHOLMOD when cvxopt imports, else SuperLU — and SuperLU too
         when CHOLMOD reports the matrix as not positive definite (it can, at round-off level,
-        when the weights span many decades).
+        when the weights span many decades); ``"pcg"``: no factorisation, multigrid-preconditioned
+        conjugate gradients on H in r×r block form (:mod:`posegraph.multigrid`, pyamg; its
+        near-null space identity blocks, a uniform shift of every ``x_k``), each column of the
+        right-hand side to a relative residual of :data:`posegraph.multigrid.DEFAULT_TOLERANCE`.
     threads : int or None, default 1
         Threads of the BLAS under CHOLMOD during its work
         (:class:`posegraph.native_threads.NativeThreads`; None leaves it as it is).
@@ -105,6 +109,7 @@ class RelativeLeastSquares:
         self.free_from, self.free_to = free[i], free[j]
         self.both_free = self.free_from & self.free_to
         self._cholesky = None  # CHOLMOD's analysis, made at the first factorisation
+        self._multigrid = None  # "pcg": the multigrid solver, its aggregates kept between solves
         self._analyse_pattern()
         # Which blocks the pattern stores (the analysed free sets) and what a restriction changes:
         self._layout = (self.free_from, self.free_to, self.both_free)
@@ -125,10 +130,11 @@ class RelativeLeastSquares:
         held = np.asarray(held, dtype=bool) | self.held
         if counted_edges.shape != self.edge_from.shape or held.shape != self.held.shape:
             raise ValueError("counted_edges must have shape (m,) and held (n,)")
-        if self.linear_solver != "scipy" and self._cholesky is None and cholmod_library.load() is not None:
+        if self.linear_solver in ("auto", "cholmod") and self._cholesky is None and cholmod_library.load() is not None:
             self._cholesky = self._symbolic()  # made once here, so that every view shares it
         view = copy.copy(self)
         view.held, view._counted = held, counted_edges
+        view._multigrid = None  # its aggregates are the view's own matrix's
         free = ~held
         view.free_from, view.free_to = free[self.edge_from], free[self.edge_to]
         view.both_free = view.free_from & view.free_to
@@ -236,7 +242,8 @@ class RelativeLeastSquares:
 
         free = ~self.held
         values[free] = solve(rhs.reshape(-1, k)).reshape(shape)[var[free]]
-        for _ in range(refinement_steps):
+        # CG already stops at a relative residual, below what a refinement step would add to a start
+        for _ in range(0 if self.linear_solver == "pcg" else refinement_steps):
             # Iterative refinement from the edges' own residuals rather than b − H x, in which two
             # large terms nearly cancel: the gradient is evaluated from edge differences
             # x_j − P x_i, accurate to the round-off of x itself, so one correction removes most
@@ -262,7 +269,9 @@ class RelativeLeastSquares:
         Raises :class:`NotPositiveDefiniteError` when no backend factorises it, or its solution is not finite.
         """
         solve = None
-        if self.linear_solver != "scipy":
+        if self.linear_solver == "pcg":
+            solve = self._multigrid_solve(data)
+        elif self.linear_solver != "scipy":
             if cholmod_library.load() is None and self.linear_solver == "cholmod":
                 raise ImportError(f"linear_solver='cholmod': {cholmod_library.unavailable_reason()}")
             if cholmod_library.load() is not None:
@@ -277,6 +286,17 @@ class RelativeLeastSquares:
             return solution
 
         return finite_solve
+
+    def _multigrid_solve(self, data: np.ndarray):
+        """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.multigrid`)."""
+        if self._multigrid is None:
+            if not multigrid.available():
+                raise ImportError(f"linear_solver='pcg' needs pyamg: {multigrid.INSTALL_HINT}")
+            self._multigrid = multigrid.MultigridCG()
+        r = self.block
+        matrix = self._csc(data).tobsr(blocksize=(r, r))
+        self._multigrid.factorize(matrix, np.tile(np.eye(r), (self.num_free, 1)))
+        return self._multigrid.solve
 
     def _symbolic(self):
         """CHOLMOD's factorisation object for the pattern: ordering and symbolic analysis."""

@@ -21,6 +21,13 @@ inversion). :func:`make_linear_solver` picks one by name:
     factorisation than the same ordering un-postordered) and expanded to the d×d blocks (d = ``pattern.block_size``, the group's tangent dimension).
     Without pivoting on a symmetric positive-definite matrix LU is Cholesky in disguise
     (U = D Lᵀ), so it is stable.
+``"pcg"``
+    No factorisation: conjugate gradients preconditioned by a smoothed-aggregation multigrid
+    V-cycle (pyamg, :mod:`posegraph.multigrid`) on the whole symmetric matrix in d×d block-CSR
+    form (:func:`~posegraph.solve.sparsity.symmetric_blocks`), its near-null space the global
+    motions at the current poses (:meth:`LinearSolver.linearized_at`). Memory linear in the
+    graph, where a Cholesky factor grows as n log n on surface-like graphs; steps exact to the
+    relative residual ``tolerance``. Gives no factor (covariances factorise anyway).
 ``"auto"``
     ``"cholmod"`` when cvxopt imports, else ``"scipy"``.
 
@@ -34,14 +41,16 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph import cholmod as cholmod_library
+from posegraph import multigrid
 from posegraph.cholmod import NotPositiveDefiniteError
-from posegraph.solve.sparsity import HessianPattern, lower_csc
+from posegraph.solve.sparsity import HessianPattern, lower_csc, symmetric_block_values, symmetric_blocks
 
 __all__ = [
     "NotPositiveDefiniteError",
     "LinearSolver",
     "CholmodSolver",
     "ScipySolver",
+    "MultigridSolver",
     "cholmod_available",
     "make_linear_solver",
 ]
@@ -57,8 +66,9 @@ class LinearSolver:
 
     name: str = "abstract"
 
-    def factorize(self, data: np.ndarray) -> None:  # pragma: no cover - interface
-        """Numeric factorisation of the matrix whose lower-triangle CSC ``data`` is given."""
+    def factorize(self, data: np.ndarray, shift: np.ndarray | None = None) -> None:  # pragma: no cover - interface
+        """Numeric factorisation of the matrix whose lower-triangle CSC ``data`` is given, plus
+        ``diag(shift)`` (``(dp,)``, LM's damping) when given; ``data`` itself is left unchanged."""
         raise NotImplementedError
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
@@ -71,6 +81,26 @@ class LinearSolver:
         the caller needs nothing more from this factorisation, which the backend may hand over
         instead of copying (solves then need a new backend)."""
         raise NotImplementedError
+
+    holds_factorization: bool = True
+    """Whether keeping the last factorisation for another solve later is cheap (a Cholesky factor
+    serves the solver's chord steps); an iterative solver keeps nothing worth holding."""
+
+    def release(self) -> None:
+        """Drop what the last factorisation made if it is not held (the next factorize makes it anew)."""
+
+    def linearized_at(self, poses: np.ndarray, group) -> None:
+        """Told the free vertices' poses ``(p, k, k)`` at which the next matrices are built;
+        direct solvers need nothing of them (:class:`MultigridSolver` builds its near-null space)."""
+
+
+def shifted(pattern: HessianPattern, data: np.ndarray, shift: np.ndarray | None) -> np.ndarray:
+    """The lower-triangle ``data`` of ``H + diag(shift)``: a copy when ``shift`` is given, else ``data``."""
+    if shift is None:
+        return data
+    out = np.array(data, dtype=np.float64, copy=True)
+    out[pattern.diagonal] += shift
+    return out
 
 
 class CholmodSolver(LinearSolver):
@@ -88,9 +118,10 @@ class CholmodSolver(LinearSolver):
         )  # fmt: skip
         threads = f", {blas_threads} BLAS thread{'s' if blas_threads != 1 else ''}" if self._cholesky.threads_active else ""
         self.name = f"cholmod (supernodal, {ordering}{threads}) via cvxopt"
+        self._pattern = pattern
 
-    def factorize(self, data: np.ndarray) -> None:
-        self._cholesky.factorize(data)
+    def factorize(self, data: np.ndarray, shift: np.ndarray | None = None) -> None:
+        self._cholesky.factorize(shifted(self._pattern, data, shift))
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         return self._cholesky.solve(rhs)
@@ -199,7 +230,7 @@ class ScipySolver(LinearSolver):
         self._lu = None
         self.name = "scipy (SuperLU, no pivoting, postordered vertex MMD)"
 
-    def factorize(self, data: np.ndarray) -> None:
+    def factorize(self, data: np.ndarray, shift: np.ndarray | None = None) -> None:
         """SuperLU of the permuted matrix; :class:`NotPositiveDefiniteError` unless every pivot is finite and positive.
 
         (Without pivoting, LU of a symmetric matrix has U's diagonal = D of ``L D Lᵀ``: all
@@ -208,7 +239,7 @@ class ScipySolver(LinearSolver):
         from scipy.sparse.linalg import splu
 
         self._lu = None
-        data = np.asarray(data, dtype=np.float64)
+        data = shifted(self._pattern, np.asarray(data, dtype=np.float64), shift)
         if not np.isfinite(data).all():
             raise NotPositiveDefiniteError("matrix has non-finite entries")
         matrix = self._sparse.csc_matrix((data[self._gather], self._indices, self._indptr), shape=self._shape)
@@ -243,14 +274,67 @@ class ScipySolver(LinearSolver):
         return lower.indptr.astype(np.int64), lower.indices.astype(np.int64), lower.data, self.permutation.copy()
 
 
+class MultigridSolver(LinearSolver):
+    """Multigrid-preconditioned CG (:mod:`posegraph.multigrid`) on H in block-CSR form; no factor."""
+
+    def __init__(self, pattern: HessianPattern, tolerance: float = multigrid.DEFAULT_TOLERANCE):
+        self._pattern, self._layout = pattern, symmetric_blocks(pattern)
+        self._cg = multigrid.MultigridCG(tolerance)
+        self._values = None  # the block values, one buffer refilled at each factorisation
+        self._null_space = None
+        self.name = f"pcg (smoothed-aggregation multigrid via pyamg, relative residual {tolerance:g})"
+
+    holds_factorization = False  # a chord step would cost a whole CG solve, and the hierarchy its memory
+
+    def release(self) -> None:
+        """Drop the block matrix and the hierarchy: no memory held while the next H is assembled."""
+        self._values = None
+        self._cg.release()
+
+    @property
+    def iterations(self) -> list[int]:
+        """CG iterations of each solve so far."""
+        return self._cg.iterations
+
+    def linearized_at(self, poses: np.ndarray, group) -> None:
+        self._null_space = multigrid.pose_null_space(group, poses)
+
+    def factorize(self, data: np.ndarray, shift: np.ndarray | None = None) -> None:
+        """The multigrid hierarchy of the matrix with lower-triangle ``data`` (near-null space: the
+        last :meth:`linearized_at`'s global motions, identity blocks before any). ``shift`` goes
+        onto the block matrix's diagonal: no copy of ``data``."""
+        import scipy.sparse as sp
+
+        pattern = self._pattern
+        self._values = symmetric_block_values(pattern, self._layout, np.asarray(data, dtype=np.float64), self._values)
+        if shift is not None:
+            d = pattern.block_size
+            diagonal_blocks = self._layout.diagonal_blocks
+            self._values[diagonal_blocks[:, None], np.arange(d), np.arange(d)] += shift.reshape(-1, d)
+        size = pattern.dimension
+        matrix = sp.bsr_matrix((self._values, self._layout.indices, self._layout.indptr), shape=(size, size), copy=False)
+        null_space = self._null_space
+        if null_space is None or null_space.shape[0] != size:
+            null_space = np.tile(np.eye(pattern.block_size), (pattern.num_variables, 1))
+        self._cg.factorize(matrix, null_space)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self._cg.solve(rhs)
+
+    def factor(self, release: bool = False):
+        raise NotImplementedError("linear solver 'pcg' computes no factor; covariances need 'cholmod' or 'scipy'")
+
+
 def make_linear_solver(
-    kind: str, pattern: HessianPattern, ordering: str = "auto", blas_threads: int | None = 1
+    kind: str, pattern: HessianPattern, ordering: str = "auto", blas_threads: int | None = 1,
+    tolerance: float = multigrid.DEFAULT_TOLERANCE,
 ) -> LinearSolver:
-    """Build the backend ``kind`` (``"auto"``, ``"cholmod"`` or ``"scipy"``) for ``pattern``.
+    """Build the backend ``kind`` (``"auto"``, ``"cholmod"``, ``"scipy"`` or ``"pcg"``) for ``pattern``.
 
     ``ordering`` and ``blas_threads`` apply to CHOLMOD (``"auto"``:
     :func:`posegraph.cholmod.auto_ordering`; ``blas_threads=None`` leaves the BLAS under CHOLMOD
-    as it is). Asking for ``"cholmod"`` without cvxopt raises ``ImportError`` with the install hint.
+    as it is), ``tolerance`` to ``"pcg"``. Asking for ``"cholmod"`` without cvxopt, or ``"pcg"``
+    without pyamg, raises ``ImportError`` with the install hint.
     """
     if kind == "auto":
         kind = "cholmod" if cholmod_available() else "scipy"
@@ -265,4 +349,8 @@ def make_linear_solver(
         return CholmodSolver(pattern, ordering, blas_threads)
     if kind == "scipy":
         return ScipySolver(pattern)
-    raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod' or 'scipy'")
+    if kind == "pcg":
+        if not multigrid.available():
+            raise ImportError(f"linear_solver='pcg' needs pyamg: {multigrid.INSTALL_HINT}")
+        return MultigridSolver(pattern, tolerance)
+    raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod', 'scipy' or 'pcg'")

@@ -100,7 +100,9 @@ def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
     pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim)
     solver = None
     if pattern.num_variables > 0 and graph.num_edges > 0:
-        solver = make_linear_solver(params.linear_solver, pattern, params.ordering, params.blas_threads)
+        solver = make_linear_solver(
+            params.linear_solver, pattern, params.ordering, params.blas_threads, params.linear_tolerance
+        )
     edges = (np.array(graph.edge_from, copy=True), np.array(graph.edge_to, copy=True))
     return Analysis(*edges, held, pattern, solver, time.perf_counter() - start)
 
@@ -267,6 +269,8 @@ class _Run:
 
     def linearize(self) -> "_System":
         """The normal equations at the current poses (gradient now, H on first use)."""
+        if self.held_lambda is None:
+            self.solver.release()  # what it made for the last H is not needed while the next is built
         with self.clock.phase("linearize"):
             blocks = self.objective.linearize(self.poses, self.evaluation)
         with self.clock.phase("assemble"):
@@ -364,7 +368,7 @@ def _trust_region_step(run: _Run, system: _System) -> _Outcome:
         with run.clock.phase("solve"):
             stop = _judge(run, trial)
         if trial.accepted or stop is not None:
-            hold = trial.accepted and trial.scale == 1.0 and run.params.reuse_factorization
+            hold = trial.accepted and trial.scale == 1.0 and run.params.reuse_factorization and run.solver.holds_factorization
             return _Outcome(trial, attempts, stop, hold and _in_newton_region(trial.gain))
         if not run.damping.grow():
             return _Outcome(trial, attempts, LAMBDA_EXCEEDED)
@@ -379,13 +383,17 @@ def _solve_damped(run: _Run, system: _System) -> _Trial:
     trial = _Trial(run.damping.lam)
     data = system.hessian
     with run.clock.phase("factorize"):
-        damped = run.damping.damp(data, run.pattern.diagonal)
+        shift = run.damping.shift(data, run.pattern.diagonal)
+        run.solver.linearized_at(run.poses[run.free], run.graph.group)
         try:
-            run.solver.factorize(damped)
+            run.solver.factorize(data, shift)
         except NotPositiveDefiniteError:
             return trial
     with run.clock.phase("solve"):
-        trial.step = step = run.solver.solve(-system.gradient)
+        try:
+            trial.step = step = run.solver.solve(-system.gradient)
+        except NotPositiveDefiniteError:  # an iterative solver finds it only here
+            return trial
         # (einsum, not a BLAS dot: numpy's BLAS threads would then spin against CHOLMOD's)
         trial.slope = float(np.einsum("i,i->", system.gradient, step))  # φ'(0) = gᵀδ
         trial.damping_term = run.damping.term(step)
@@ -554,9 +562,12 @@ def _chord_step(solver, gradient: np.ndarray):
 
     ``M`` is the (damped) matrix of an earlier iteration of this run, whose full step was accepted
     with a gain ratio near 1. ``−½gᵀδ = ½gᵀM⁻¹g`` is the Newton decrement under ``M``
-    (:func:`_decrement_negligible`). ``δ`` is None if it is not finite.
+    (:func:`_decrement_negligible`). ``δ`` is None if it is not finite (or an iterative solver fails).
     """
-    step = solver.solve(-gradient)
+    try:
+        step = solver.solve(-gradient)
+    except NotPositiveDefiniteError:
+        return None, float("nan")
     if not np.all(np.isfinite(step)):
         return None, float("nan")
     return step, float(np.einsum("i,i->", gradient, step))

@@ -13,7 +13,7 @@ from typing import Any, Callable, Optional
 __all__ = ["SolverParams"]
 
 _METHODS = ("lm", "gn")
-_LINEAR_SOLVERS = ("auto", "cholmod", "scipy")
+_LINEAR_SOLVERS = ("auto", "cholmod", "scipy", "pcg")
 _LAMBDA_UPDATES = ("nielsen", "fixed")
 
 
@@ -138,8 +138,14 @@ class SolverParams:
     """Sparse solver for the normal equations (:func:`posegraph.solve.linear.make_linear_solver`):
     ``"cholmod"`` (CHOLMOD's supernodal Cholesky from the cvxopt wheel, :mod:`posegraph.cholmod`;
     symbolic analysis once per graph), ``"scipy"`` (SuperLU without pivoting in symmetric mode;
-    needs only scipy), or ``"auto"`` (CHOLMOD when cvxopt imports, else scipy). Figures in
-    ``docs/cholesky.md``."""
+    needs only scipy), ``"pcg"`` (no factorisation: conjugate gradients preconditioned by
+    smoothed-aggregation multigrid, pyamg; memory linear in the graph, for graphs whose factor
+    would not fit: :mod:`posegraph.multigrid`), or ``"auto"`` (CHOLMOD when cvxopt imports, else
+    scipy). Figures in ``docs/cholesky.md`` and ``docs/benchmarks.md`` ("Memory per pose")."""
+
+    linear_tolerance: float = 1e-8
+    """``"pcg"``: relative residual ‖b − Ax‖/‖b‖ at which CG stops (:data:`posegraph.multigrid.DEFAULT_TOLERANCE`).
+    Ignored by the direct solvers."""
 
     ordering: str = "auto"
     """Fill-reducing ordering for ``"cholmod"`` (:data:`posegraph.cholmod.ORDERINGS`): ``"amd"``
@@ -180,6 +186,8 @@ class SolverParams:
         for name in ("relative_tolerance", "absolute_tolerance", "cost_tolerance", "lambda_min", "min_diagonal"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 < self.linear_tolerance < 1:
+            raise ValueError(f"linear_tolerance must be in (0, 1), got {self.linear_tolerance!r}")
         for name in ("initial_lambda", "lambda_max", "max_diagonal"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")

@@ -34,6 +34,7 @@ from posegraph.lie.group import SE3
 
 __all__ = [
     "HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc", "PinnedVariables",
+    "SymmetricBlocks", "symmetric_blocks", "symmetric_block_values",
 ]
 
 BLOCK = SE3.dim
@@ -61,8 +62,6 @@ class HessianPattern:
     p×p graph of free vertices, one entry per stored d×d block (for block orderings)."""
     block_indices: np.ndarray
     """``(p + number of off-diagonal blocks,)`` int32 rows of that pattern, diagonal first in each column."""
-    entry_columns: np.ndarray
-    """``(nnz,)`` int32 column of each stored entry (for :func:`lower_matvec`)."""
     hessian_positions: np.ndarray
     """``(3, d²·m)`` int32 (int64 past 2³¹ stored entries): row ``k`` holds the position in ``data`` of each entry of the ``k``-th
     per-edge blocks ``(m, d, d)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
@@ -77,6 +76,12 @@ class HessianPattern:
     def dimension(self) -> int:
         """Size ``dp`` of the linear system."""
         return self.block_size * self.num_variables
+
+    @property
+    def entry_columns(self) -> np.ndarray:
+        """``(nnz,)`` int32 column of each stored entry, made anew at each use: as large as
+        ``indices``, and needed only by the few who ask (a caller that asks often keeps it)."""
+        return np.repeat(np.arange(self.dimension, dtype=np.int32), np.diff(self.indptr))
 
     @property
     def nnz(self) -> int:
@@ -131,7 +136,6 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int
         diagonal=layout.indptr[:-1].copy(),  # the diagonal entry is first in each column
         block_indptr=blocks.indptr.astype(np.int32),
         block_indices=blocks.indices,
-        entry_columns=np.repeat(np.arange(d * p, dtype=np.int32), np.diff(layout.indptr)),
         hessian_positions=hessian_positions,
         gradient_positions=gradient_positions,
         block_size=d,
@@ -266,10 +270,21 @@ def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:
     return np.bincount(pattern.gradient_positions, weights=weights, minlength=d + 1)[:d]
 
 
-def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(dp,)``."""
-    d = pattern.dimension
-    return np.bincount(pattern.indices, weights=data * x[pattern.entry_columns], minlength=d)
+def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
+    """``tril(H) @ x`` for the lower triangle ``data`` of H: ``(dp,)``.
+
+    Column by column, ~``chunk`` entries at a time: no temporary as large as ``data``."""
+    d, indptr = pattern.dimension, pattern.indptr
+    out = np.zeros(d)
+    begin = 0
+    while begin < d:
+        end = max(begin + 1, int(np.searchsorted(indptr, indptr[begin] + chunk, side="right")) - 1)
+        end = min(end, d)
+        first, last = int(indptr[begin]), int(indptr[end])
+        columns = np.repeat(np.arange(begin, end), np.diff(indptr[begin : end + 1]))
+        out += np.bincount(pattern.indices[first:last], weights=data[first:last] * x[columns], minlength=d)
+        begin = end
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,3 +331,71 @@ def lower_csc(pattern: HessianPattern, data: np.ndarray):
 
     d = pattern.dimension
     return sp.csc_matrix((data, pattern.indices, pattern.indptr), shape=(d, d), copy=False)
+
+
+@dataclass(frozen=True, eq=False)
+class SymmetricBlocks:
+    """Block-CSR layout of the whole symmetric H (both triangles, d×d blocks, for iterative
+    solvers) and, for each of its blocks, the stored lower-triangle block it is read from."""
+
+    indptr: np.ndarray
+    """``(p + 1,)`` int64 block-row pointers."""
+    indices: np.ndarray
+    """``(b,)`` int32 block column of each block, sorted within each block row."""
+    source_column: np.ndarray
+    """``(b,)`` int32 block column ``c`` of the stored block each block reads (the vertex pattern's)."""
+    source_rank: np.ndarray
+    """``(b,)`` int32 its rank among column ``c``'s stored blocks (0: the diagonal block)."""
+    transposed: np.ndarray
+    """``(b,)`` bool: the block is the transpose of its stored block (it lies above the diagonal)."""
+    diagonal_blocks: np.ndarray
+    """``(p,)`` int64: index of each variable's diagonal block among the ``b``."""
+
+
+def symmetric_blocks(pattern: HessianPattern) -> SymmetricBlocks:
+    """The :class:`SymmetricBlocks` of ``pattern``: every stored block once as is, and every
+    off-diagonal one again transposed, sorted by (block row, block column)."""
+    p = pattern.num_variables
+    stored_column = np.repeat(np.arange(p, dtype=np.int64), np.diff(pattern.block_indptr))
+    stored_row = pattern.block_indices.astype(np.int64)
+    rank = np.arange(stored_row.size) - pattern.block_indptr[stored_column]
+    off = rank > 0
+    rows = np.concatenate([stored_row, stored_column[off]])
+    columns = np.concatenate([stored_column, stored_row[off]])
+    order = np.argsort(rows * max(p, 1) + columns, kind="stable")
+    source = np.concatenate([np.arange(stored_row.size), np.flatnonzero(off)])[order]
+    return SymmetricBlocks(
+        indptr=np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=p))]),
+        indices=columns[order].astype(np.int32),
+        source_column=stored_column[source].astype(np.int32),
+        source_rank=rank[source].astype(np.int32),
+        transposed=(np.arange(order.size) >= stored_row.size)[order],
+        diagonal_blocks=np.flatnonzero((rows == columns)[order]),
+    )
+
+
+def symmetric_block_values(
+    pattern: HessianPattern, layout: SymmetricBlocks, data: np.ndarray, out: np.ndarray | None = None, chunk: int = 1 << 16
+) -> np.ndarray:
+    """``(b, d, d)`` values of the blocks of ``layout`` from the lower-triangle ``data`` of H.
+
+    Entry ``(a, e)`` of the ``s``-th stored block of block column ``c`` (:func:`_scalar_layout`)
+    sits at ``indptr[d·c + e] + (d − e) + d·(s − 1) + a`` for ``s ≥ 1``; a diagonal block stores
+    only ``a ≥ e``, at ``indptr[d·c + e] + (a − e)``. Positions are made ``chunk`` blocks at a time,
+    so no table as large as ``data`` is kept. ``out``: a buffer of the right shape to fill.
+    """
+    d = pattern.block_size
+    count = layout.indices.size
+    out = np.empty((count, d, d)) if out is None else out
+    a, e = np.meshgrid(np.arange(d), np.arange(d), indexing="ij")
+    for begin in range(0, count, chunk):
+        part = slice(begin, min(begin + chunk, count))
+        flip = layout.transposed[part][:, None, None]
+        row, col = np.where(flip, e, a), np.where(flip, a, e)  # (a, e) of the stored block
+        rank = layout.source_rank[part][:, None, None].astype(np.int64)
+        diagonal = rank == 0
+        row, col = np.where(diagonal, np.maximum(row, col), row), np.where(diagonal, np.minimum(row, col), col)
+        start = pattern.indptr[d * layout.source_column[part][:, None, None].astype(np.int64) + col]
+        offset = np.where(diagonal, row - col, (d - col) + d * (rank - 1) + row)
+        out[part] = data[start + offset]
+    return out

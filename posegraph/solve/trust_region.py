@@ -89,21 +89,21 @@ class Damping:
         self.nu = 2.0  # Nielsen's growth factor for consecutive rejections
         self.diagonal: np.ndarray | None = None
 
-    def damp(self, data: np.ndarray, diagonal: np.ndarray) -> np.ndarray:
-        """CSC ``data`` of ``H + λD`` from that of ``H`` (positions of its diagonal: ``diagonal``)."""
+    def shift(self, data: np.ndarray, diagonal: np.ndarray) -> np.ndarray | None:
+        """``(dp,)`` the damping ``λ·diag(D)`` to add to the diagonal of H, whose CSC ``data`` has its
+        diagonal at positions ``diagonal``; None for Gauss-Newton (no damping). The linear solver
+        adds it (:meth:`posegraph.solve.linear.LinearSolver.factorize`), so H itself is kept."""
         if not self.active:
-            return data
+            return None
         h_diagonal = data[diagonal]
         if self.params.diagonal_damping:
             self.diagonal = np.clip(h_diagonal, self.params.min_diagonal, self.params.max_diagonal)
         else:
             self.diagonal = np.ones_like(h_diagonal)
-        damped = data.copy()
-        damped[diagonal] += self.lam * self.diagonal
-        return damped
+        return self.lam * self.diagonal
 
     def term(self, step: np.ndarray) -> float:
-        """``λ δᵀDδ`` for the step solved with the last :meth:`damp` (0 for Gauss-Newton)."""
+        """``λ δᵀDδ`` for the step solved with the last :meth:`shift` (0 for Gauss-Newton)."""
         if not self.active:
             return 0.0
         return self.lam * float(np.einsum("i,i,i->", step, self.diagonal, step))

@@ -109,6 +109,50 @@ def test_auto_picks_cholmod_when_available_else_scipy(monkeypatch):
         make_linear_solver("mumps", pattern)
 
 
+@pytest.fixture
+def multigrid_available():
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pcg_solution_matches_dense_solve(seed, multigrid_available):
+    pattern, data, full, rhs = spd_system(seed)
+    solver = make_linear_solver("pcg", pattern, tolerance=1e-13)
+    assert not solver.holds_factorization
+    for scale in (1.0, 2.0):  # refactorised with new values on the same pattern
+        solver.factorize(data * scale)
+        np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(scale * full, rhs), rtol=1e-8, atol=1e-9)
+    assert solver.name.startswith("pcg") and "1e-13" in solver.name
+    with pytest.raises(NotImplementedError, match="covariances"):
+        solver.factor()
+    solver.release()
+    with pytest.raises(RuntimeError, match="factorize"):
+        solver.solve(rhs)
+
+
+@pytest.mark.parametrize("kind", ["scipy", "cholmod", "pcg"])
+def test_shift_is_added_to_the_diagonal_and_data_left_unchanged(kind):
+    if kind == "pcg":
+        pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    if kind == "cholmod" and not cholmod_available():
+        pytest.skip("CHOLMOD (cvxopt) is not installed")
+    pattern, data, full, rhs = spd_system(8)
+    shift = np.random.default_rng(8).uniform(0.1, 3.0, size=pattern.dimension)
+    kept = data.copy()
+    solver = make_linear_solver(kind, pattern, tolerance=1e-13)
+    solver.factorize(data, shift)
+    np.testing.assert_array_equal(data, kept)
+    np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(full + np.diag(shift), rhs), rtol=1e-8, atol=1e-9)
+
+
+def test_pcg_without_pyamg_says_what_to_install(monkeypatch):
+    from posegraph import multigrid
+
+    monkeypatch.setattr(multigrid, "available", lambda: False)
+    with pytest.raises(ImportError, match=r"posegraph\[large\]"):
+        make_linear_solver("pcg", spd_system(0)[0])
+
+
 def test_elimination_tree_of_a_path_and_an_arrow():
     # path 0-1-2-3: parent k -> k+1
     path = sp.csc_matrix(np.eye(4) + np.eye(4, k=1) + np.eye(4, k=-1))
@@ -185,15 +229,15 @@ def test_lm_raises_lambda_when_cholmod_reports_not_positive_definite(monkeypatch
     params = SolverParams(linear_solver="cholmod")
     clean = optimize(graph, params=params)
 
-    class FirstFactorizationIndefinite:
+    class FirstFactorizationIndefinite(linear.LinearSolver):
         def __init__(self, solver):
             self.solver, self.name, self.failed = solver, solver.name, False
 
-        def factorize(self, data):
+        def factorize(self, data, shift=None):
             if not self.failed:
                 self.failed = True
-                self.solver.factorize(-data)  # raises: CHOLMOD's ArithmeticError, translated
-            self.solver.factorize(data)
+                self.solver.factorize(-data, shift)  # raises: CHOLMOD's ArithmeticError, translated
+            self.solver.factorize(data, shift)
 
         def solve(self, rhs):
             return self.solver.solve(rhs)

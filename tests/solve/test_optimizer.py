@@ -432,3 +432,42 @@ def test_the_decrement_stop_takes_the_chord_step_the_cost_confirms(shared_datase
     assert result.final_cost == pytest.approx(optimum.final_cost, rel=1e-10)
     assert result.final_cost == pytest.approx(cost(graph, result.poses), rel=1e-12)
     np.testing.assert_allclose(result.poses, plain.poses, rtol=0, atol=1e-12)
+
+
+def _sim3_graph(seed):
+    from tests.init.test_sim3_init import drifted_graph
+
+    return drifted_graph(np.random.default_rng(seed), noise=0.01)[0]
+
+
+PCG_GRAPHS = {
+    "SE3": lambda: synthetic_graph(4, n=60, loops=40),
+    "SE2": lambda: synthetic_graph(5, n=60, loops=40, group=SE2),
+    "SE3, two components and FIX vertices": lambda: synthetic_graph(6, n=60, loops=40, fixed=[5, 40], components=2),
+    "Sim3": lambda: _sim3_graph(7),
+}
+
+
+@pytest.mark.parametrize("name", PCG_GRAPHS)
+def test_pcg_reaches_the_factorisations_optimum(name, monkeypatch):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    from posegraph import multigrid
+
+    monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 24)  # coarse levels even on a small graph
+    graph = PCG_GRAPHS[name]()
+    direct = optimize(graph, params=SolverParams(linear_solver="scipy"))
+    iterative = optimize(graph, params=SolverParams(linear_solver="pcg"))
+    assert iterative.linear_solver.startswith("pcg") and iterative.converged
+    assert iterative.final_cost == pytest.approx(direct.final_cost, rel=1e-9)
+    # both stop at LM's tolerances (relative decrease 1e-7), not at the same digit
+    np.testing.assert_allclose(iterative.poses, direct.poses, rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("name", ["sphere2500", "intel", "parking-garage"])
+def test_pcg_reaches_the_factorisations_optimum_on_standard_files(name, shared_dataset):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    graph = read_g2o(shared_dataset(name))
+    direct = optimize(graph, params=SolverParams())
+    iterative = optimize(graph, params=SolverParams(linear_solver="pcg"))
+    assert iterative.converged  # (parking-garage's flat directions leave poses ~4e-3 apart at equal costs)
+    assert iterative.final_cost == pytest.approx(direct.final_cost, rel=1e-9)

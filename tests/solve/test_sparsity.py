@@ -7,7 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc, lower_matvec
+from posegraph.solve.sparsity import (
+    analyze_pattern, gradient_values, hessian_values, lower_csc, lower_matvec, symmetric_block_values, symmetric_blocks,
+)  # fmt: skip
 
 
 def random_graph(rng, n, m):
@@ -156,6 +158,40 @@ def test_lower_matvec_is_the_stored_lower_triangle_times_a_vector(seed):
     x = rng.normal(size=pattern.dimension)
     expected = lower_csc(pattern, data).toarray() @ x
     np.testing.assert_allclose(lower_matvec(pattern, data, x), expected, rtol=1e-12, atol=1e-12)
+    for chunk in (1, 7, 100):  # a few entries at a time: the same product
+        np.testing.assert_allclose(lower_matvec(pattern, data, x, chunk=chunk), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_entry_columns_are_the_csc_columns():
+    rng = np.random.default_rng(3)
+    edge_from, edge_to = random_graph(rng, 12, 30)
+    pattern = analyze_pattern(12, edge_from, edge_to, np.arange(12) == 4)
+    lower = lower_csc(pattern, np.arange(1.0, pattern.nnz + 1)).tocoo()
+    order = np.argsort(lower.data)
+    np.testing.assert_array_equal(pattern.entry_columns, lower.col[order])
+
+
+@pytest.mark.parametrize("block", [3, 6])
+@pytest.mark.parametrize("seed", range(3))
+def test_symmetric_blocks_hold_the_whole_matrix(block, seed):
+    """The block-CSR values read from the lower triangle are H itself, both triangles, for any chunk size."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(seed)
+    n, m = 25, 70
+    edge_from, edge_to = random_graph(rng, n, m)
+    held = rng.random(n) < 0.2
+    pattern = analyze_pattern(n, edge_from, edge_to, held, block)
+    data = rng.normal(size=pattern.nnz)
+    lower = lower_csc(pattern, data).toarray()
+    full = lower + np.tril(lower, -1).T
+    layout = symmetric_blocks(pattern)
+    assert np.all(np.diff(layout.indptr) >= 1) and layout.indices.size == 2 * pattern.block_indices.size - pattern.num_variables
+    for chunk in (1, 5, 1 << 16):
+        values = symmetric_block_values(pattern, layout, data, chunk=chunk)
+        matrix = sp.bsr_matrix((values, layout.indices, layout.indptr), shape=full.shape)
+        np.testing.assert_array_equal(matrix.toarray(), full)
+    np.testing.assert_array_equal(layout.indices[layout.diagonal_blocks], np.arange(pattern.num_variables))
 
 
 def test_scatter_maps_are_int32_and_assemble_as_int64_ones_do():
