@@ -20,6 +20,7 @@ import numpy as np
 from posegraph.graph import PoseGraph
 from posegraph.init.chordal import chordal_initialization, chordal_rotations, translations_given_rotations
 from posegraph.graph import held_vertices
+from posegraph.heap import release_free_memory
 from posegraph.init.odometry import odometry_initialization, spanning_tree
 
 __all__ = [
@@ -59,4 +60,6 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
         return file_initialization(graph)
     if method == "odometry":
         return odometry_initialization(graph, **options)
-    return chordal_initialization(graph, **options)
+    poses = chordal_initialization(graph, **options)
+    release_free_memory()  # its systems' pages, which the solver's large arrays would not reuse
+    return poses

@@ -242,8 +242,7 @@ class RelativeLeastSquares:
 
         free = ~self.held
         values[free] = solve(rhs.reshape(-1, k)).reshape(shape)[var[free]]
-        # CG already stops at a relative residual, below what a refinement step would add to a start
-        for _ in range(0 if self.linear_solver == "pcg" else refinement_steps):
+        for _ in range(refinement_steps):
             # Iterative refinement from the edges' own residuals rather than b − H x, in which two
             # large terms nearly cancel: the gradient is evaluated from edge differences
             # x_j − P x_i, accurate to the round-off of x itself, so one correction removes most

@@ -30,6 +30,7 @@ from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
+from posegraph.heap import release_free_memory
 from posegraph.io.text_input import read_text
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
@@ -119,7 +120,10 @@ def read_g2o(
         text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
         return _parse(text, "<stdin>", None, require_edges, repair_information, (edge2_information, poses_only))
     text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
-    return _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
+    graph = _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
+    del text
+    release_free_memory()  # the text's and the tokens' pages, which the solver's large arrays would not reuse
+    return graph
 
 
 def _parse(

@@ -40,10 +40,10 @@ __all__ = ["EdgeBlocks", "linearize"]
 class EdgeBlocks:
     """The linearisation of every edge at one set of poses (``d`` = the group's tangent dimension).
 
-    The gradient blocks are computed at once; the Hessian blocks on first use of
-    :attr:`hessian_blocks` (kept with this object: the solver drops it once H is assembled): a
-    solver that finds from the gradient alone that it has converged (:mod:`posegraph.solve.optimizer`,
-    Newton decrement) never pays for them.
+    The gradient blocks are computed at once; the Hessian blocks on demand, a slice of edges at a
+    time (:meth:`hessian_slice`, what the solver assembles H from: the blocks of all edges never
+    exist at once) or all together (:attr:`hessian_blocks`): a solver that finds from the gradient
+    alone that it has converged (:mod:`posegraph.solve.optimizer`, Newton decrement) never pays for them.
     """
 
     residuals: np.ndarray
@@ -63,23 +63,25 @@ class EdgeBlocks:
     priors: object | None = None
     """The priors' blocks (:class:`posegraph.solve.unary.PriorBlocks`), None for a graph without priors."""
 
+    def hessian_slice(self, part: slice) -> tuple:
+        """``(H_ii, H_jj, H_ij)`` of the edges in ``part``, each ``(k, d, d)``: ``W = w BᵀΩB``,
+        ``H_jj = W``, ``H_ij = −AdᵀW``, ``H_ii = −H_ij Ad`` (what the solver assembles H from, a
+        slice at a time: :func:`posegraph.solve.sparsity.hessian_values`)."""
+        b, adjoint = self.jacobian_inverse[part], self.adjoint[part]
+        w = np.swapaxes(b, -1, -2) @ (self.information[part] @ b)  # H_jj = Bᵀ Ω B
+        if self.weights is not None:
+            w *= self.weights[part, None, None]
+        h_ij = np.swapaxes(adjoint, -1, -2) @ w
+        np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
+        h_ii = h_ij @ adjoint
+        np.negative(h_ii, out=h_ii)  # H_ii = Adᵀ W Ad
+        return h_ii, w, h_ij
+
     @cached_property
     def hessian_blocks(self) -> tuple:
-        """``(H_ii, H_jj, H_ij)``, each ``(m, d, d)``: ``W = w BᵀΩB``, ``H_jj = W``, ``H_ij = −AdᵀW``,
-        ``H_ii = −H_ij Ad`` (kept apart: stacking them would copy ~5 MB per iteration on a
-        6,000-edge graph for nothing, the assembly reads them one by one)."""
-        def compute(part):
-            b, adjoint = self.jacobian_inverse[part], self.adjoint[part]
-            w = np.swapaxes(b, -1, -2) @ (self.information[part] @ b)  # H_jj = Bᵀ Ω B
-            if self.weights is not None:
-                w *= self.weights[part, None, None]
-            h_ij = np.swapaxes(adjoint, -1, -2) @ w
-            np.negative(h_ij, out=h_ij)  # H_ij = −Adᵀ W
-            h_ii = h_ij @ adjoint
-            np.negative(h_ii, out=h_ii)  # H_ii = Adᵀ W Ad
-            return h_ii, w, h_ij
-
-        return _residuals.by_slices(self.residuals.shape[0], compute)  # slices, for the caches
+        """``(H_ii, H_jj, H_ij)`` of every edge, each ``(m, d, d)`` (:meth:`hessian_slice`; kept apart:
+        stacking them would copy them for nothing, the assembly reads them one by one)."""
+        return _residuals.by_slices(self.residuals.shape[0], self.hessian_slice)  # slices, for the caches
 
     @property
     def hessian(self) -> np.ndarray:

@@ -342,13 +342,10 @@ class _System:
     @cached_property
     def hessian(self) -> np.ndarray:
         """CSC ``data`` of the lower triangle of H (:mod:`posegraph.solve.sparsity`)."""
-        with self.run.clock.phase("linearize"):
-            blocks = self.blocks.hessian_blocks
-        with self.run.clock.phase("assemble"):
-            data = hessian_values(self.run.pattern, blocks)
+        with self.run.clock.phase("assemble"):  # the Hessian blocks made and added a slice of edges at a time
+            data = hessian_values(self.run.pattern, self.blocks.hessian_slice)
             if self.blocks.priors is not None:
                 add_prior_hessian(self.run.pattern, data, self.blocks.priors)
-        del blocks
         # Assembled: H and g alone are used from here on. The edge blocks (Jacobian factors, adjoints,
         # per-edge gradients: ~600 bytes an SE(3) edge) go before the factorisation needs the memory.
         self.blocks = None

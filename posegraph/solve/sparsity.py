@@ -247,19 +247,31 @@ def _narrowest(positions: np.ndarray, largest: int) -> np.ndarray:
     return positions.astype(np.int32) if largest < np.iinfo(np.int32).max else positions
 
 
-def hessian_values(pattern: HessianPattern, blocks) -> np.ndarray:
+SLICE_EDGES = 1 << 14
+"""Edges whose blocks :func:`hessian_values` adds at a time."""
+
+
+def hessian_values(pattern: HessianPattern, blocks, slice_edges: int = SLICE_EDGES) -> np.ndarray:
     """CSC ``data`` of the lower triangle of H from the per-edge blocks ``[H_ii, H_jj, H_ij]``.
 
     ``blocks`` is a sequence of three ``(m, d, d)`` arrays (what :func:`posegraph.solve.linearize.linearize`
-    returns, no stacking copy needed) or one ``(m, 3, d, d)`` array. ``H_ij = A_iᵀ Ω A_j`` is the
-    block at (block row of ``i``, block column of ``j``).
+    returns, no stacking copy needed), one ``(m, 3, d, d)`` array, or a function ``part -> (H_ii,
+    H_jj, H_ij)`` of a ``slice`` of the edges, called ``slice_edges`` edges at a time so that the
+    blocks of all edges never exist at once (:meth:`posegraph.solve.linearize.EdgeBlocks.hessian_slice`).
+    ``H_ij = A_iᵀ Ω A_j`` is the block at (block row of ``i``, block column of ``j``). Entries are
+    added in place (``np.add.at``: no temporary as large as H), slice by slice, then block by block.
     """
     if isinstance(blocks, np.ndarray):
         blocks = [blocks[:, k] for k in range(3)]
-    length = pattern.nnz + 1
-    data = np.zeros(length)
-    for positions, block in zip(pattern.hessian_positions, blocks):
-        data += np.bincount(positions, weights=np.ascontiguousarray(block, dtype=np.float64).ravel(), minlength=length)
+    part_blocks = blocks if callable(blocks) else (lambda part: [b[part] for b in blocks])
+    entries = pattern.block_size**2
+    m = pattern.hessian_positions.shape[1] // entries
+    data = np.zeros(pattern.nnz + 1)
+    for begin in range(0, m, slice_edges):
+        part = slice(begin, min(begin + slice_edges, m))
+        where = slice(part.start * entries, part.stop * entries)
+        for positions, block in zip(pattern.hessian_positions, part_blocks(part)):
+            np.add.at(data, positions[where], np.ascontiguousarray(block, dtype=np.float64).ravel())
     return data[: pattern.nnz]
 
 

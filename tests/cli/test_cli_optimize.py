@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.cli.conftest import CLI, assert_one_error_line, default_sigint, run_cli
+from tests.cli.conftest import CLI, Run, assert_one_error_line, default_sigint, run_cli
 
 TINY_GRID_COST = 9.313909433544  # gtsam 4.3 LM on tinyGrid3D (docs/architecture.md, guide)
 
@@ -210,3 +210,28 @@ def test_ctrl_c_exits_130_and_leaves_no_output(tmp_path, shared_dataset):
     assert proc.returncode == 130, "".join(seen) + rest
     assert "Traceback" not in rest
     assert list(tmp_path.iterdir()) == []  # no result, no report, no temporary file
+
+
+def test_pcg_reaches_the_default_solvers_cost(tmp_path, shared_dataset):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    reports = {}
+    for solver in ("auto", "pcg"):
+        reports[solver] = tmp_path / f"{solver}.json"
+        run = run_cli("optimize", shared_dataset("sphere2500"), "-o", tmp_path / f"{solver}.g2o",
+                      "--report", reports[solver], "-q", "--linear-solver", solver)  # fmt: skip
+        assert run.returncode == 0, run.stderr
+    default, pcg = (json.loads(reports[s].read_text()) for s in ("auto", "pcg"))
+    assert pcg["linear_solver"].startswith("pcg (smoothed-aggregation multigrid")
+    assert pcg["settings"]["linear_solver_requested"] == "pcg"
+    assert pcg["final_cost"] == pytest.approx(default["final_cost"], rel=1e-9)
+
+
+def test_pcg_without_pyamg_is_one_line_saying_what_to_install(tmp_path, shared_dataset):
+    # pyamg hidden from the process (a None entry in sys.modules makes its import fail)
+    code = ("import sys; sys.modules['pyamg'] = None; from posegraph.cli import main; "
+            f"sys.exit(main(['optimize', {str(shared_dataset('tinyGrid3D'))!r}, '-o', {str(tmp_path / 'o.g2o')!r}, "
+            "'--linear-solver', 'pcg', '-q']))")  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=CLI.parent, timeout=120)
+    run = Run([], proc.returncode, proc.stdout, proc.stderr)
+    assert_one_error_line(run, "pcg", 'pip install "posegraph[large]"')
+    assert not (tmp_path / "o.g2o").exists()

@@ -47,6 +47,17 @@ def test_noise_free_measurements_give_the_truth_through_cholmod(name, graph, tru
     np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-10, atol=1e-9)
 
 
+@pytest.mark.parametrize("name, graph, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
+def test_noise_free_measurements_give_the_truth_through_pcg(name, graph, truth, monkeypatch):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    from posegraph import multigrid
+
+    monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)  # coarse levels even on a small graph
+    poses = chordal_initialization(graph, linear_solver="pcg")
+    # CG stops at a relative residual of 1e-8: the start is that close, not to the last digit
+    np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-6, atol=1e-6)
+
+
 def test_cholmod_thread_setting_changes_nothing_but_speed(cholmod_backend):
     """RelativeLeastSquares runs CHOLMOD with one thread by default (posegraph.native_threads); any
     setting gives the same solution, and a nonsense one is refused."""
