@@ -17,12 +17,11 @@ __all__ = ["release_free_memory"]
 @functools.lru_cache(maxsize=1)
 def _trim():
     """glibc's ``malloc_trim``, or None (another C library, another system)."""
-    import ctypes.util  # here: only a run that reads a file needs it
+    import ctypes  # here, and not ctypes.util (which imports shutil, tempfile, random: startup time)
 
-    name = ctypes.util.find_library("c")
     try:
-        return ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):  # no such library, or not glibc (musl, macOS, Windows)
+        return ctypes.CDLL(None).malloc_trim  # the symbols the process has loaded: glibc's, on Linux
+    except (OSError, AttributeError, TypeError):  # not glibc (musl, macOS), or Windows (no CDLL(None))
         return None
 
 

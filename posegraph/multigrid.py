@@ -74,11 +74,11 @@ class MultigridCG:
     ``tolerance``: CG's relative residual. ``iterations`` lists the CG iterations of each solve.
     """
 
-    def __init__(self, tolerance: float = DEFAULT_TOLERANCE, max_iterations: int = MAX_ITERATIONS):
+    def __init__(self, tolerance: float = DEFAULT_TOLERANCE, max_iterations: int = MAX_ITERATIONS, smoothed: bool = False):
         import pyamg
 
         self._pyamg = pyamg
-        self.tolerance, self.max_iterations = tolerance, max_iterations
+        self.tolerance, self.max_iterations, self.smoothed = tolerance, max_iterations, smoothed
         self._aggregates = None  # per-level aggregation operators, from the first set-up
         self._matrix = self._preconditioner = None
         self.iterations: list[int] = []
@@ -93,7 +93,7 @@ class MultigridCG:
             levels = dict(aggregate=[("predefined", {"AggOp": a}) for a in self._aggregates],
                           max_levels=len(self._aggregates) + 1)  # fmt: skip
         hierarchy = self._pyamg.smoothed_aggregation_solver(
-            matrix, B=near_null_space, symmetry="hermitian", smooth=None, improve_candidates=None,
+            matrix, B=near_null_space, symmetry="hermitian", smooth="jacobi" if self.smoothed else None, improve_candidates=None,
             max_coarse=COARSEST_UNKNOWNS, coarse_solver="splu", presmoother=_SWEEP[0], postsmoother=_SWEEP[1],
             keep=self._aggregates is None, **levels,
         )  # fmt: skip
@@ -103,7 +103,7 @@ class MultigridCG:
                 for name in ("C", "T", "AggOp", "P_unsmoothed"):
                     level.__dict__.pop(name, None)
         self._matrix = matrix
-        self._preconditioner = hierarchy.aspreconditioner(cycle="W")
+        self._preconditioner = hierarchy.aspreconditioner(cycle="V" if self.smoothed else "W")
 
     def release(self) -> None:
         """Drop the matrix and the hierarchy (the aggregates stay); :meth:`factorize` must come next."""

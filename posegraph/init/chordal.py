@@ -51,6 +51,7 @@ from posegraph.init.checks import require_usable
 from posegraph.graph import held_vertices
 from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
+from posegraph.init.odometry import odometry_initialization
 from posegraph.init.scales import edge_scale_terms, log_scales, rotation_blocks
 from posegraph.init.weights import rotation_weights, translation_information
 
@@ -142,10 +143,14 @@ def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:
     r = graph.group.space_dim
     file_rotations, _ = rotation_blocks(graph.poses, graph.group)  # Sim(3): without the scales
     weights = rotation_weights(graph.information, graph.group)
+    null = None
+    if problem.linear_solver == "pcg":  # the odometry's rotations: Y_j ≈ R_zᵀ Y_i along every edge
+        null = rotation_blocks(odometry_initialization(graph), graph.group)[0].transpose(0, 2, 1)
     transposed = problem.solve(
         file_rotations.transpose(0, 2, 1),
         transfer=rotation_blocks(graph.measurements, graph.group)[0].transpose(0, 2, 1),
         weight=weights[:, None, None] * np.eye(r),
+        near_null_space=null,
     )
     rotations = np.array(file_rotations, copy=True)
     free = ~problem.held

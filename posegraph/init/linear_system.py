@@ -210,12 +210,16 @@ class RelativeLeastSquares:
         weighted_offset: np.ndarray | None = None,
         *,
         refinement_steps: int = 1,
+        near_null_space: np.ndarray | None = None,
     ) -> np.ndarray:
         """The minimiser ``(n, r, k)``; held rows equal ``held_values``.
 
         ``held_values`` ``(n, r, k)`` (rows of free vertices are ignored), ``transfer`` ``P_e`` and
         ``weight`` ``W_e`` ``(m, r, r)``, ``weighted_offset`` ``g_e = W_e h_e`` ``(m, r, k)`` or
         None for zero. ``refinement_steps`` steps of iterative refinement follow the first solve.
+        ``near_null_space`` ``(n, r, r)``, for ``"pcg"``: blocks ``x_k`` with ``x_j ≈ P_e x_i`` on
+        every edge (what H barely moves before the held vertices are removed; identity blocks,
+        exact when every ``P_e = I``, if None).
         """
         values = np.array(held_values, dtype=np.float64, copy=True)
         k = values.shape[-1]
@@ -228,7 +232,7 @@ class RelativeLeastSquares:
         i, j, var = self.edge_from, self.edge_to, self.variable
         free_i, free_j = self.free_from, self.free_to
         weight_transfer = weight @ transfer  # W P
-        solve = self._factorize(self._matrix(transfer, weight_transfer, weight))
+        solve = self._factorize(self._matrix(transfer, weight_transfer, weight), near_null_space)
 
         shape = (self.num_free, self.block, k)
         rhs = np.zeros(shape)
@@ -262,14 +266,15 @@ class RelativeLeastSquares:
         size = self.block * self.num_free
         return sp.csc_matrix((data, self._indices, self._indptr), shape=(size, size))
 
-    def _factorize(self, data: np.ndarray):
-        """``solve(rhs) -> x`` for the matrix with CSC ``data``, by the backend chosen at construction.
+    def _factorize(self, data: np.ndarray, near_null_space: np.ndarray | None = None):
+        """``solve(rhs) -> x`` for the matrix with CSC ``data``, by the backend chosen at construction
+        (``near_null_space``: :meth:`solve`'s, for ``"pcg"``).
 
         Raises :class:`NotPositiveDefiniteError` when no backend factorises it, or its solution is not finite.
         """
         solve = None
         if self.linear_solver == "pcg":
-            solve = self._multigrid_solve(data)
+            solve = self._multigrid_solve(data, near_null_space)
         elif self.linear_solver != "scipy":
             if cholmod_library.load() is None and self.linear_solver == "cholmod":
                 raise ImportError(f"linear_solver='cholmod': {cholmod_library.unavailable_reason()}")
@@ -286,15 +291,20 @@ class RelativeLeastSquares:
 
         return finite_solve
 
-    def _multigrid_solve(self, data: np.ndarray):
-        """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.multigrid`)."""
+    def _multigrid_solve(self, data: np.ndarray, near_null_space: np.ndarray | None):
+        """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.multigrid`; smoothed
+        aggregation: these r×r systems are small beside the solver's, its prolongators cheap)."""
         if self._multigrid is None:
             if not multigrid.available():
                 raise ImportError(f"linear_solver='pcg' needs pyamg: {multigrid.INSTALL_HINT}")
-            self._multigrid = multigrid.MultigridCG()
+            self._multigrid = multigrid.MultigridCG(smoothed=True)
         r = self.block
         matrix = self._csc(data).tobsr(blocksize=(r, r))
-        self._multigrid.factorize(matrix, np.tile(np.eye(r), (self.num_free, 1)))
+        if near_null_space is None:
+            null = np.tile(np.eye(r), (self.num_free, 1))
+        else:
+            null = np.ascontiguousarray(near_null_space[~self.held].reshape(-1, r))
+        self._multigrid.factorize(matrix, null)
         return self._multigrid.solve
 
     def _symbolic(self):
