@@ -2,8 +2,9 @@
 
     python -m benchmarks.bench_memory make sphere 200000 -o /tmp/big/s200k.g2o
     python -m benchmarks.bench_memory make route 1000000 -o /tmp/big/r1m.g2o [--loop-density 0.3]
-    python -m benchmarks.bench_memory phases /tmp/big/s200k.g2o        # RSS per phase, in one process
-    python -m benchmarks.bench_memory run /tmp/big/r1m.g2o [/tmp/big/s200k.g2o …]   # whole processes
+    python -m benchmarks.bench_memory phases /tmp/big/s200k.g2o [--linear-solver pcg]  # RSS per phase, one process
+    python -m benchmarks.bench_memory run /tmp/big/r1m.g2o [/tmp/big/s200k.g2o …] [--linear-solver pcg]  # whole processes
+    python -m benchmarks.bench_memory pcg /tmp/big/s50k.g2o           # CG iterations: three preconditioners
 
 ``make``: a synthetic graph (:mod:`datasets.synthetic`, seed 0, default noise). ``sphere``: g2o's
 create_sphere layout, 4 edges a pose, a closed surface whose Cholesky factor grows as n log n.
@@ -17,11 +18,13 @@ and the peak since the last mark (the kernel's high-water mark, reset through
 ``/proc/self/clear_refs``) after each phase and each iteration, and the largest numpy arrays
 alive at the first iteration (tracemalloc; CHOLMOD's factor is the rest).
 
-``pcg``: how far conjugate gradients (block-Jacobi preconditioner, scipy) are from replacing the
-factorisation, which is what fills memory on a sphere: iterations and seconds to solve the first
-Gauss-Newton system at the chordal start to a relative residual of 1e-4 and 1e-8.
+``pcg``: conjugate gradients instead of the factorisation, which is what fills memory on a sphere:
+iterations and seconds to solve the first Gauss-Newton system at the chordal start to a relative
+residual of 1e-4 and 1e-8 with a block-Jacobi preconditioner and with the multigrid cycle of
+``--linear-solver pcg`` (:mod:`posegraph.multigrid`), its near-null space the global motions or
+identity blocks.
 
-``run``: ``python cli.py optimize IN -o OUT --report R.json -q`` under ``/usr/bin/time -v``:
+``run``: ``python cli.py optimize IN -o OUT --report R.json -q [--linear-solver S]`` under ``/usr/bin/time -v``:
 wall seconds, peak resident memory (GiB and bytes a pose), final cost, iterations. Figures are
 recorded in ``docs/benchmarks.md`` ("Memory per pose").
 """
@@ -109,34 +112,54 @@ def _largest_arrays(snapshot, count: int = 6) -> None:
 
 
 def pcg(path: Path) -> None:
-    """Iterations and seconds of block-Jacobi PCG on the first Gauss-Newton system (module docstring)."""
+    """CG iterations and seconds on the first Gauss-Newton system, three preconditioners (module docstring)."""
     import numpy as np
-    import scipy.sparse as sp
     import scipy.sparse.linalg as sla
 
+    from posegraph import multigrid
     from posegraph.init.chordal import chordal_initialization
     from posegraph.io.g2o import read_g2o
     from posegraph.solve.linearize import linearize
-    from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, lower_csc
+    from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values, symmetric_block_values, symmetric_blocks
 
     graph = read_g2o(path)
     d = graph.group.dim
     held = np.arange(graph.num_vertices) == 0
     pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, d)
-    blocks = linearize(chordal_initialization(graph), graph)
-    lower = lower_csc(pattern, hessian_values(pattern, blocks.hessian_blocks))
-    hessian = (lower + sp.tril(lower, -1).T).tocsr()
+    poses = chordal_initialization(graph)
+    blocks = linearize(poses, graph)
+    layout = symmetric_blocks(pattern)
+    hessian = _block_matrix(pattern, layout, symmetric_block_values(pattern, layout, hessian_values(pattern, blocks.hessian_slice)))
     rhs = -gradient_values(pattern, blocks.gradient)
-    diagonal = np.stack([hessian[k * d:(k + 1) * d, k * d:(k + 1) * d].toarray() for k in range(hessian.shape[0] // d)])
-    inverse = np.linalg.inv(diagonal)
-    preconditioner = sla.LinearOperator(hessian.shape, matvec=lambda v: (inverse @ v.reshape(-1, d, 1)).ravel())
+    inverse = np.linalg.inv(symmetric_block_values(pattern, layout, hessian_values(pattern, blocks.hessian_slice))[layout.diagonal_blocks])
+    jacobi = sla.LinearOperator(hessian.shape, matvec=lambda v: (inverse @ v.reshape(-1, d, 1)).ravel())
     for rtol in (1e-4, 1e-8):
-        count = [0]
-        begin = time.perf_counter()
-        _, info = sla.cg(hessian, rhs, rtol=rtol, maxiter=50_000, M=preconditioner,
-                         callback=lambda _: count.__setitem__(0, count[0] + 1))  # fmt: skip
-        print(f"{path.name}: PCG (block Jacobi) to relative residual {rtol:g}: {count[0]} iterations, "
-              f"{time.perf_counter() - begin:.1f} s" + ("" if info == 0 else f" (stopped: info {info})"))
+        _count_cg(f"{path.name}: block Jacobi", hessian, rhs, rtol, jacobi)
+        for name, null in (("global motions", multigrid.pose_null_space(graph.group, poses[~held])),
+                           ("identity blocks", np.tile(np.eye(d), (pattern.num_variables, 1)))):  # fmt: skip
+            begin = time.perf_counter()
+            solver = multigrid.MultigridCG(rtol)
+            solver.factorize(hessian, null)
+            solver.solve(rhs)
+            print(f"{path.name}: multigrid ({name}) to relative residual {rtol:g}: {solver.iterations[-1]} iterations, "
+                  f"{time.perf_counter() - begin:.1f} s with its set-up", flush=True)
+
+
+def _block_matrix(pattern, layout, values):
+    import scipy.sparse as sp
+
+    return sp.bsr_matrix((values, layout.indices, layout.indptr), shape=(pattern.dimension,) * 2)
+
+
+def _count_cg(name: str, matrix, rhs, rtol: float, preconditioner) -> None:
+    import scipy.sparse.linalg as sla
+
+    count = [0]
+    begin = time.perf_counter()
+    _, info = sla.cg(matrix, rhs, rtol=rtol, maxiter=50_000, M=preconditioner,
+                     callback=lambda _: count.__setitem__(0, count[0] + 1))  # fmt: skip
+    print(f"{name} to relative residual {rtol:g}: {count[0]} iterations, {time.perf_counter() - begin:.1f} s"
+          + ("" if info == 0 else f" (stopped: info {info})"), flush=True)
 
 
 def run(paths: list[Path], linear_solver: str = "auto") -> list[dict]:
