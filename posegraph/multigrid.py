@@ -1,25 +1,29 @@
-"""Conjugate gradients preconditioned by smoothed-aggregation multigrid, for block SPD systems too
-large to factorise.
+"""Conjugate gradients preconditioned by aggregation multigrid, for block SPD systems too large
+to factorise.
 
 The Cholesky factor of a pose graph's normal equations grows as n log n on a surface-like graph
 (a 200,000-pose sphere: ~22 kB a pose), the matrix itself only as n (~2.6 kB a pose). Algebraic
-multigrid (Vaněk, Mandel and Brezina, "Algebraic multigrid by smoothed aggregation for second
-and fourth order elliptic problems", 1996; pyamg's ``smoothed_aggregation_solver``) builds a
-hierarchy of coarser systems from the matrix alone, about 1.1 times its size, and one V-cycle of
-it preconditions CG (Hestenes–Stiefel; scipy's ``cg``).
+multigrid by aggregation (Vaněk, Mandel and Brezina, "Algebraic multigrid by smoothed aggregation
+for second and fourth order elliptic problems", 1996; pyamg's ``smoothed_aggregation_solver``)
+builds a hierarchy of coarser systems from the matrix alone, and one cycle of it preconditions CG
+(Hestenes–Stiefel; scipy's ``cg``).
 
-Smoothed aggregation needs the *near-null space* ``B``: the vectors the matrix barely moves,
-which the coarse levels must represent exactly. For a pose graph with right perturbations they
-are the global motions: left-multiplying every pose by ``Exp(ξ)`` changes no residual, and in
-each vertex's tangent that motion is ``δ_k = Ad(X_k⁻¹) ξ``, so ``B`` stacks the d×d blocks
+Aggregation needs the *near-null space* ``B``: the vectors the matrix barely moves, which the
+coarse levels must represent exactly. For a pose graph with right perturbations they are the
+global motions: left-multiplying every pose by ``Exp(ξ)`` changes no residual, and in each
+vertex's tangent that motion is ``δ_k = Ad(X_k⁻¹) ξ``, so ``B`` stacks the d×d blocks
 ``Ad(X_k⁻¹)`` (exactly H's null space before the anchor is removed; :func:`pose_null_space`).
-With identity blocks instead, CG needs ~7× the iterations on a sphere.
+With identity blocks instead CG needs several times the iterations (``benchmarks/bench_memory.py pcg``).
 
-Aggregates (which vertices merge into one coarse vertex) depend on the graph, not the values, so
-they are computed at the first :meth:`MultigridCG.factorize` and reused after (pyamg's
-``predefined`` aggregation): later set-ups only smooth the prolongators and form the coarse
-operators. The smoother is one forward block Gauss–Seidel sweep before and one backward after,
-so the V-cycle is a symmetric positive-definite operator, as CG needs.
+Two settings (``smoothed``): the solver's, plain aggregation (prolongators unsmoothed) with a
+W-cycle, whose hierarchy is small beside H and cheap to set up; and smoothed aggregation (one
+Jacobi step on each prolongator) with a V-cycle, about half the iterations, but its prolongators
+and their set-up take as much memory again as H (~0.9 GiB on the 200,000-pose sphere) — used for
+the chordal start's smaller r×r systems. Aggregates (which vertices merge into one coarse vertex)
+depend on the graph, not the values, so they are computed at the first
+:meth:`MultigridCG.factorize` and reused after (pyamg's ``predefined`` aggregation). The smoother
+is one forward block Gauss–Seidel sweep before and one backward after, so the cycle is a
+symmetric positive-definite operator, as CG needs.
 
 pyamg is an optional dependency (``pip install "posegraph[large]"``); :func:`available` says
 whether it imports.
@@ -35,8 +39,8 @@ __all__ = ["MultigridCG", "available", "pose_null_space", "DEFAULT_TOLERANCE", "
 
 DEFAULT_TOLERANCE = 1e-8
 """Relative residual ‖b − Ax‖ / ‖b‖ at which CG stops. Inexact Gauss-Newton steps slow LM's last
-iterations; at 1e-8 the steps agree with a factorisation's to what LM's convergence tests see
-(final costs equal to 1e-10 relative on the benchmarks), for ~2× the CG iterations of 1e-4."""
+iterations; at 1e-8 the steps are what a factorisation gives as far as LM's convergence tests see
+(final costs equal to the factorisation's to ≤ 2e-10 relative on the test graphs)."""
 
 MAX_ITERATIONS = 1000
 """CG iterations before a solve is given up (raises :class:`NotPositiveDefiniteError`)."""
@@ -71,7 +75,9 @@ class MultigridCG:
     """``factorize(matrix, near_null_space)`` builds the hierarchy; ``solve(rhs)`` runs PCG.
 
     ``matrix``: scipy ``bsr_matrix`` (both triangles, d×d blocks), symmetric positive definite.
-    ``tolerance``: CG's relative residual. ``iterations`` lists the CG iterations of each solve.
+    ``tolerance``: CG's relative residual. ``smoothed``: smoothed aggregation and a V-cycle, else
+    plain aggregation and a W-cycle (module docstring). ``iterations`` lists the CG iterations of
+    each solve.
     """
 
     def __init__(self, tolerance: float = DEFAULT_TOLERANCE, max_iterations: int = MAX_ITERATIONS, smoothed: bool = False):

@@ -59,6 +59,16 @@ def test_scatter_matches_dense_assembly(seed):
     # the three blocks given apart, as linearize returns them, assemble the same
     apart = hessian_values(pattern, tuple(np.ascontiguousarray(blocks[:, k]) for k in range(3)))
     np.testing.assert_array_equal(apart, hessian_values(pattern, blocks))
+    # and made slice by slice by a function of the edges' slice, a few edges at a time (the solver's way)
+    asked = []
+
+    def by_slice(part):
+        asked.append(part)
+        return [blocks[part, k] for k in range(3)]
+
+    sliced = lower_csc(pattern, hessian_values(pattern, by_slice, slice_edges=3)).toarray()
+    np.testing.assert_allclose(sliced, np.tril(h_ref), rtol=0, atol=1e-12)
+    assert [(p.start, p.stop) for p in asked] == [(a, min(a + 3, m)) for a in range(0, m, 3)]
     np.testing.assert_allclose(gradient_values(pattern, grads), g_ref, rtol=0, atol=1e-12)
     assert pattern.dimension == 6 * np.count_nonzero(~held)
 
