@@ -92,6 +92,10 @@ _SERIES_RADIUS = 0.7
 """``|z| = √(λ² + θ²)`` below which V's ``b, c`` are the double Taylor series (module docstring)."""
 _SERIES_ORDER = 20
 """Highest total degree ``j + 2k`` kept in the double series (the first left out is below 0.7²¹/21! ≈ 1e-23)."""
+_LAMBDA_NEGLIGIBLE = 1e-150
+"""Outside the series' radius, ``|λ|`` below which ``c = C(θ)`` exactly as at λ = 0: the closed form's
+numerator (~λ) and divisor (λ·z²) would reach the subnormal range and lose their bits (λ = 5e-324
+gave c off by 25 %), while ``c − C(θ)`` is O(λ), far below round-off."""
 QUADRATURE_NODES = 10
 """Gauss–Legendre nodes for the Jacobian blocks ``∫[t(τ)]× R(τ) dτ`` and ``∫t(τ) dτ``."""
 
@@ -139,7 +143,7 @@ def _closed_bc(theta: np.ndarray, lam: np.ndarray):
     theta_sq = theta * theta
     z_sq = lam * lam + theta_sq
     b = (s * lam * A + s * theta_sq * B - s_minus_one) / z_sq
-    zero = lam == 0.0
+    zero = np.abs(lam) < _LAMBDA_NEGLIGIBLE
     c = (s * lam * lam * B + s_minus_one - s * lam * A) / np.where(zero, 1.0, lam * z_sq)
     return b, np.where(zero, C, c)
 

@@ -77,9 +77,9 @@ def _v_reference(theta: float, lam: float) -> tuple[float, float, float]:
 
 
 @pytest.mark.parametrize("theta", [0.0, 1e-9, 1e-4, 0.1, 0.35, 0.6999, 0.7001, 1.0, np.pi])
-@pytest.mark.parametrize("lam", [0.0, 1e-12, -1e-7, 1e-3, 0.3, -0.6999, 0.7001, 1.5, -3.0])
+@pytest.mark.parametrize("lam", [0.0, 5e-324, -1e-310, 1e-200, 1e-12, -1e-7, 1e-3, 0.3, -0.6999, 0.7001, 1.5, -3.0])
 def test_v_coefficients_in_every_regime(theta, lam):
-    """Both-small series, θ → 0 alone, λ → 0 alone, λ = 0 exactly, and either side of |z| = 0.7."""
+    """Both-small series, θ → 0 alone, λ → 0 alone (down to subnormal λ), λ = 0 exactly, and either side of |z| = 0.7."""
     got = sim3.v_coefficients(np.array([theta]), np.array([lam]))
     for value, reference in zip(got, _v_reference(theta, lam)):
         assert abs(value[0] - reference) <= 4e-15 * abs(reference)
