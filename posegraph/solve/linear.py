@@ -22,8 +22,8 @@ inversion). :func:`make_linear_solver` picks one by name:
     Without pivoting on a symmetric positive-definite matrix LU is Cholesky in disguise
     (U = D Lᵀ), so it is stable.
 ``"pcg"``
-    No factorisation: conjugate gradients preconditioned by a smoothed-aggregation multigrid
-    V-cycle (pyamg, :mod:`posegraph.multigrid`) on the whole symmetric matrix in d×d block-CSR
+    No factorisation: conjugate gradients preconditioned by an aggregation multigrid W-cycle
+    (pyamg, :mod:`posegraph.multigrid`) on the whole symmetric matrix in d×d block-CSR
     form (:func:`~posegraph.solve.sparsity.symmetric_blocks`), its near-null space the global
     motions at the current poses (:meth:`LinearSolver.linearized_at`). Memory linear in the
     graph, where a Cholesky factor grows as n log n on surface-like graphs; steps exact to the
@@ -280,9 +280,9 @@ class MultigridSolver(LinearSolver):
     def __init__(self, pattern: HessianPattern, tolerance: float = multigrid.DEFAULT_TOLERANCE):
         self._pattern, self._layout = pattern, symmetric_blocks(pattern)
         self._cg = multigrid.MultigridCG(tolerance)
-        self._values = None  # the block values, one buffer refilled at each factorisation
+        self._values = None  # the block values: one buffer, refilled by LM's retries on one H, dropped by release()
         self._null_space = None
-        self.name = f"pcg (smoothed-aggregation multigrid via pyamg, relative residual {tolerance:g})"
+        self.name = f"pcg (aggregation multigrid via pyamg, relative residual {tolerance:g})"
 
     holds_factorization = False  # a chord step would cost a whole CG solve, and the hierarchy its memory
 

@@ -139,7 +139,7 @@ class SolverParams:
     ``"cholmod"`` (CHOLMOD's supernodal Cholesky from the cvxopt wheel, :mod:`posegraph.cholmod`;
     symbolic analysis once per graph), ``"scipy"`` (SuperLU without pivoting in symmetric mode;
     needs only scipy), ``"pcg"`` (no factorisation: conjugate gradients preconditioned by
-    smoothed-aggregation multigrid, pyamg; memory linear in the graph, for graphs whose factor
+    aggregation multigrid, pyamg; memory linear in the graph, for graphs whose factor
     would not fit: :mod:`posegraph.multigrid`), or ``"auto"`` (CHOLMOD when cvxopt imports, else
     scipy). Figures in ``docs/cholesky.md`` and ``docs/benchmarks.md`` ("Memory per pose")."""
 
