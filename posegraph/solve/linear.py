@@ -274,6 +274,11 @@ class ScipySolver(LinearSolver):
         return lower.indptr.astype(np.int64), lower.indices.astype(np.int64), lower.data, self.permutation.copy()
 
 
+FORCING_MAX, FORCING_GAMMA, FORCING_ALPHA = 1e-2, 0.9, 2.0
+"""Eisenstat and Walker ("Choosing the forcing terms in an inexact Newton method", 1996), choice 2
+with their γ = 0.9, α = 2: loose solves while LM's gradient falls slowly, tight as it converges."""
+
+
 class MultigridSolver(LinearSolver):
     """Multigrid-preconditioned CG (:mod:`posegraph.multigrid`) on H in block-CSR form; no factor."""
 
@@ -282,6 +287,8 @@ class MultigridSolver(LinearSolver):
         self._cg = multigrid.MultigridCG(tolerance)
         self._values = None  # the block values: one buffer, refilled by LM's retries on one H, dropped by release()
         self._null_space = None
+        self.tolerance = tolerance
+        self._last_norm = None  # ‖b‖ of the last solve (forcing term)
         self.name = f"pcg (aggregation multigrid via pyamg, relative residual {tolerance:g})"
 
     holds_factorization = False  # a chord step would cost a whole CG solve, and the hierarchy its memory
@@ -319,6 +326,17 @@ class MultigridSolver(LinearSolver):
         self._cg.factorize(matrix, null_space)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """CG to the relative residual ``max(tolerance, min(η_max, γ (‖b‖/‖b_prev‖)^α))`` (Eisenstat and
+        Walker's second forcing term, ``b_prev`` the last different right-hand side: LM's gradients)."""
+        norm = float(np.linalg.norm(rhs))
+        if self._last_norm is None:
+            forcing = FORCING_MAX
+        elif norm == self._last_norm:  # the same gradient, another λ: as tight as the last solve
+            forcing = self._cg.tolerance
+        else:
+            forcing = min(FORCING_MAX, FORCING_GAMMA * (norm / self._last_norm) ** FORCING_ALPHA)
+        self._last_norm = norm
+        self._cg.tolerance = max(self.tolerance, forcing)
         return self._cg.solve(rhs)
 
     def factor(self, release: bool = False):
