@@ -38,9 +38,10 @@ from posegraph.cholmod import NotPositiveDefiniteError
 __all__ = ["MultigridCG", "available", "pose_null_space", "DEFAULT_TOLERANCE", "INSTALL_HINT"]
 
 DEFAULT_TOLERANCE = 1e-8
-"""Relative residual ‖b − Ax‖ / ‖b‖ at which CG stops. Inexact Gauss-Newton steps slow LM's last
-iterations; at 1e-8 the steps are what a factorisation gives as far as LM's convergence tests see
-(final costs equal to the factorisation's to ≤ 2e-10 relative on the test graphs)."""
+"""Relative residual ‖b − Ax‖ / ‖b‖ at which CG stops (the solver's floor under its forcing terms).
+Inexact Gauss-Newton steps slow LM's last iterations; at 1e-8 the steps are what a factorisation
+gives as far as LM's convergence tests see (final costs equal to the factorisation's to ≤ 2e-10
+relative on the test graphs)."""
 
 MAX_ITERATIONS = 1000
 """CG iterations before a solve is given up (raises :class:`NotPositiveDefiniteError`)."""

@@ -26,8 +26,9 @@ inversion). :func:`make_linear_solver` picks one by name:
     (pyamg, :mod:`posegraph.multigrid`) on the whole symmetric matrix in d×d block-CSR
     form (:func:`~posegraph.solve.sparsity.symmetric_blocks`), its near-null space the global
     motions at the current poses (:meth:`LinearSolver.linearized_at`). Memory linear in the
-    graph, where a Cholesky factor grows as n log n on surface-like graphs; steps exact to the
-    relative residual ``tolerance``. Gives no factor (covariances factorise anyway).
+    graph, where a Cholesky factor grows as n log n on surface-like graphs. Each solve stops at
+    a relative residual given by Eisenstat and Walker's forcing term (at most 1e-2, tightening as
+    LM's gradient falls), ``tolerance`` at the least. Gives no factor (covariances factorise anyway).
 ``"auto"``
     ``"cholmod"`` when cvxopt imports, else ``"scipy"``.
 

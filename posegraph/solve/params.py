@@ -144,7 +144,8 @@ class SolverParams:
     scipy). Figures in ``docs/cholesky.md`` and ``docs/benchmarks.md`` ("Memory per pose")."""
 
     linear_tolerance: float = 1e-8
-    """``"pcg"``: relative residual ‖b − Ax‖/‖b‖ at which CG stops (:data:`posegraph.multigrid.DEFAULT_TOLERANCE`).
+    """``"pcg"``: the tightest relative residual ‖b − Ax‖/‖b‖ CG is asked for (:data:`posegraph.multigrid.DEFAULT_TOLERANCE`);
+    looser while LM is far from converged (Eisenstat–Walker forcing, :class:`posegraph.solve.linear.MultigridSolver`).
     Ignored by the direct solvers."""
 
     ordering: str = "auto"

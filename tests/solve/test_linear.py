@@ -254,3 +254,23 @@ def test_lm_raises_lambda_when_cholmod_reports_not_positive_definite(monkeypatch
     first = result.records[0]
     assert first.attempts >= 2 and first.lambda_ > params.initial_lambda
     assert result.converged and result.final_cost == pytest.approx(clean.final_cost, rel=1e-9)
+
+
+def test_pcg_tightens_its_tolerance_as_the_gradient_falls(multigrid_available, monkeypatch):
+    """Eisenstat–Walker forcing: 1e-2 at the first solve, γ(‖b‖/‖b_prev‖)² after, never below the floor."""
+    from posegraph import multigrid
+
+    monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)  # coarse levels, so that CG iterates
+    pattern, data, full, rhs = spd_system(9, n=60, m=200)
+    solver = make_linear_solver("pcg", pattern, tolerance=1e-10)
+    solver.factorize(data)
+    asked = []
+    for scale in (1.0, 1e-3, 1e-3, 1e-9):
+        b = scale * rhs
+        x = solver.solve(b)
+        asked.append(solver._cg.tolerance)
+        assert np.linalg.norm(b - full @ x) <= asked[-1] * np.linalg.norm(b) * (1 + 1e-9)
+    assert asked[0] == linear.FORCING_MAX
+    assert asked[1] == pytest.approx(linear.FORCING_GAMMA * 1e-6)
+    assert asked[2] == asked[1]  # the same gradient again (LM's retry with another λ)
+    assert asked[3] == 1e-10  # the floor
