@@ -90,6 +90,11 @@ class LinearSolver:
     def release(self) -> None:
         """Drop what the last factorisation made if it is not held (the next factorize makes it anew)."""
 
+    def confirm_convergence(self) -> bool:
+        """Whether the last solve was exact enough for LM's convergence tests (a factorisation's is);
+        an inexact solver that answers False solves the next system to its full tolerance."""
+        return True
+
     def linearized_at(self, poses: np.ndarray, group) -> None:
         """Told the free vertices' poses ``(p, k, k)`` at which the next matrices are built;
         direct solvers need nothing of them (:class:`MultigridSolver` builds its near-null space)."""
@@ -280,6 +285,11 @@ FORCING_MAX, FORCING_GAMMA, FORCING_ALPHA = 1e-2, 0.9, 2.0
 with their γ = 0.9, α = 2: loose solves while LM's gradient falls slowly, tight as it converges."""
 
 
+CONVERGENCE_TOLERANCE = 1e-4
+"""A step solved to this relative residual or tighter is trusted by LM's convergence tests: CG's
+iterate then has all but a negligible part of the exact step's model decrease."""
+
+
 class MultigridSolver(LinearSolver):
     """Multigrid-preconditioned CG (:mod:`posegraph.multigrid`) on H in block-CSR form; no factor."""
 
@@ -290,6 +300,7 @@ class MultigridSolver(LinearSolver):
         self._null_space = None
         self.tolerance = tolerance
         self._last_norm = None  # ‖b‖ of the last solve (forcing term)
+        self._tight_next = False  # the next solve to the full tolerance (confirm_convergence)
         self.name = f"pcg (aggregation multigrid via pyamg, relative residual {tolerance:g})"
 
     holds_factorization = False  # a chord step would cost a whole CG solve, and the hierarchy its memory
@@ -330,7 +341,9 @@ class MultigridSolver(LinearSolver):
         """CG to the relative residual ``max(tolerance, min(η_max, γ (‖b‖/‖b_prev‖)^α))`` (Eisenstat and
         Walker's second forcing term, ``b_prev`` the last different right-hand side: LM's gradients)."""
         norm = float(np.linalg.norm(rhs))
-        if self._last_norm is None:
+        if self._tight_next:
+            forcing, self._tight_next = self.tolerance, False
+        elif self._last_norm is None:
             forcing = FORCING_MAX
         elif norm == self._last_norm:  # the same gradient, another λ: as tight as the last solve
             forcing = self._cg.tolerance
@@ -339,6 +352,14 @@ class MultigridSolver(LinearSolver):
         self._last_norm = norm
         self._cg.tolerance = max(self.tolerance, forcing)
         return self._cg.solve(rhs)
+
+    def confirm_convergence(self) -> bool:
+        """True when the last solve reached ``tolerance``; else the next one will (a small decrease
+        from a loosely solved step is no sign of convergence: the step was short)."""
+        if self._cg.tolerance <= max(self.tolerance, CONVERGENCE_TOLERANCE):
+            return True
+        self._tight_next = True
+        return False
 
     def factor(self, release: bool = False):
         raise NotImplementedError("linear solver 'pcg' computes no factor; covariances need 'cholmod' or 'scipy'")

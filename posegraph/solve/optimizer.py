@@ -475,7 +475,10 @@ def _termination(run: _Run, outcome: _Outcome, record: IterationRecord) -> str |
         return NON_FINITE
     if run.cost <= run.params.cost_tolerance:
         return CONVERGED_COST
-    return converged(max(record.cost_decrease, outcome.trial.predicted), run.cost_before, run.params)
+    verdict = converged(max(record.cost_decrease, outcome.trial.predicted), run.cost_before, run.params)
+    if verdict is not None and not run.solver.confirm_convergence():
+        return None  # the step was solved loosely (pcg's forcing): the next one is solved fully first
+    return verdict
 
 
 # Held factorisation: Newton decrement and chord steps

@@ -274,3 +274,19 @@ def test_pcg_tightens_its_tolerance_as_the_gradient_falls(multigrid_available, m
     assert asked[1] == pytest.approx(linear.FORCING_GAMMA * 1e-6)
     assert asked[2] == asked[1]  # the same gradient again (LM's retry with another λ)
     assert asked[3] == 1e-10  # the floor
+
+
+def test_pcg_confirms_convergence_only_after_a_tight_enough_solve(multigrid_available, monkeypatch):
+    from posegraph import multigrid
+
+    monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)
+    pattern, data, _, rhs = spd_system(10, n=60, m=200)
+    solver = make_linear_solver("pcg", pattern, tolerance=1e-10)
+    solver.factorize(data)
+    solver.solve(rhs)  # the first solve: the forcing's 1e-2
+    assert solver.confirm_convergence() is False  # … so LM's decrease test does not stop on it
+    solver.solve(rhs)
+    assert solver._cg.tolerance == 1e-10 and solver.confirm_convergence() is True
+    solver.solve(1e-3 * rhs)  # 0.9e-6 ≤ linear.CONVERGENCE_TOLERANCE: trusted as it is
+    assert solver.confirm_convergence() is True
+    assert make_linear_solver("scipy", pattern).confirm_convergence() is True
