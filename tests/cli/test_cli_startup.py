@@ -173,3 +173,17 @@ def test_help_is_as_wide_as_shutil_says(columns, monkeypatch):
     else:
         monkeypatch.setenv("COLUMNS", columns)
     assert terminal_columns() == shutil.get_terminal_size().columns
+
+
+def test_a_large_graph_gets_glibcs_lean_malloc_settings_back():
+    proc = run_python(
+        """
+        from posegraph.cli import startup
+        print(startup.return_freed_memory())  # nothing to undo yet
+        print(startup.keep_freed_memory(), startup.return_freed_memory(), startup.return_freed_memory())
+        """
+    )
+    assert proc.returncode == 0, proc.stderr
+    first, second = proc.stdout.splitlines()
+    assert first == "False"
+    assert second in ("True True False", "False False False")  # glibc; elsewhere nothing is changed
