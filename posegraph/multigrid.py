@@ -78,10 +78,12 @@ class MultigridCG:
     ``matrix``: scipy ``bsr_matrix`` (both triangles, d×d blocks), symmetric positive definite.
     ``tolerance``: CG's relative residual. ``smoothed``: smoothed aggregation and a V-cycle, else
     plain aggregation and a W-cycle (module docstring). ``iterations`` lists the CG iterations of
-    each solve.
+    each solve. Without pyamg: ``ImportError`` with the install hint.
     """
 
     def __init__(self, tolerance: float = DEFAULT_TOLERANCE, max_iterations: int = MAX_ITERATIONS, smoothed: bool = False):
+        if not available():
+            raise ImportError(f"linear_solver='pcg' needs pyamg: {INSTALL_HINT}")
         import pyamg
 
         self._pyamg = pyamg

@@ -295,8 +295,6 @@ class RelativeLeastSquares:
         """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.multigrid`; smoothed
         aggregation: these r×r systems are small beside the solver's, its prolongators cheap)."""
         if self._multigrid is None:
-            if not multigrid.available():
-                raise ImportError(f"linear_solver='pcg' needs pyamg: {multigrid.INSTALL_HINT}")
             self._multigrid = multigrid.MultigridCG(smoothed=True)
         r = self.block
         matrix = self._csc(data).tobsr(blocksize=(r, r))

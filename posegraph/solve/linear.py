@@ -294,8 +294,8 @@ class MultigridSolver(LinearSolver):
     """Multigrid-preconditioned CG (:mod:`posegraph.multigrid`) on H in block-CSR form; no factor."""
 
     def __init__(self, pattern: HessianPattern, tolerance: float = multigrid.DEFAULT_TOLERANCE):
+        self._cg = multigrid.MultigridCG(tolerance)  # first: without pyamg, nothing else is made
         self._pattern, self._layout = pattern, symmetric_blocks(pattern)
-        self._cg = multigrid.MultigridCG(tolerance)
         self._values = None  # the block values: one buffer, refilled by LM's retries on one H, dropped by release()
         self._null_space = None
         self.tolerance = tolerance
@@ -390,7 +390,5 @@ def make_linear_solver(
     if kind == "scipy":
         return ScipySolver(pattern)
     if kind == "pcg":
-        if not multigrid.available():
-            raise ImportError(f"linear_solver='pcg' needs pyamg: {multigrid.INSTALL_HINT}")
         return MultigridSolver(pattern, tolerance)
     raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod', 'scipy' or 'pcg'")
