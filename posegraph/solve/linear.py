@@ -95,9 +95,10 @@ class LinearSolver:
         an inexact solver that answers False solves the next system to its full tolerance."""
         return True
 
-    def linearized_at(self, poses: np.ndarray, group) -> None:
-        """Told the free vertices' poses ``(p, k, k)`` at which the next matrices are built;
-        direct solvers need nothing of them (:class:`MultigridSolver` builds its near-null space)."""
+    def linearized_at(self, poses: np.ndarray, free: np.ndarray, group) -> None:
+        """Told the poses ``(n, k, k)`` at which the next matrices are built (``free`` ``(n,)`` bool:
+        the vertices with variables), once per linearisation; direct solvers need nothing of them
+        (:class:`MultigridSolver` builds its near-null space)."""
 
 
 def shifted(pattern: HessianPattern, data: np.ndarray, shift: np.ndarray | None) -> np.ndarray:
@@ -315,8 +316,8 @@ class MultigridSolver(LinearSolver):
         """CG iterations of each solve so far."""
         return self._cg.iterations
 
-    def linearized_at(self, poses: np.ndarray, group) -> None:
-        self._null_space = multigrid.pose_null_space(group, poses)
+    def linearized_at(self, poses: np.ndarray, free: np.ndarray, group) -> None:
+        self._null_space = multigrid.pose_null_space(group, poses[free])
 
     def factorize(self, data: np.ndarray, shift: np.ndarray | None = None) -> None:
         """The multigrid hierarchy of the matrix with lower-triangle ``data`` (near-null space: the

@@ -271,6 +271,7 @@ class _Run:
         """The normal equations at the current poses (gradient now, H on first use)."""
         if self.held_lambda is None:
             self.solver.release()  # what it made for the last H is not needed while the next is built
+        self.solver.linearized_at(self.poses, self.free, self.graph.group)
         with self.clock.phase("linearize"):
             blocks = self.objective.linearize(self.poses, self.evaluation)
         with self.clock.phase("assemble"):
@@ -381,7 +382,6 @@ def _solve_damped(run: _Run, system: _System) -> _Trial:
     data = system.hessian
     with run.clock.phase("factorize"):
         shift = run.damping.shift(data, run.pattern.diagonal)
-        run.solver.linearized_at(run.poses[run.free], run.graph.group)
         try:
             run.solver.factorize(data, shift)
         except NotPositiveDefiniteError:
