@@ -562,12 +562,9 @@ def _chord_step(solver, gradient: np.ndarray):
 
     ``M`` is the (damped) matrix of an earlier iteration of this run, whose full step was accepted
     with a gain ratio near 1. ``−½gᵀδ = ½gᵀM⁻¹g`` is the Newton decrement under ``M``
-    (:func:`_decrement_negligible`). ``δ`` is None if it is not finite (or an iterative solver fails).
+    (:func:`_decrement_negligible`). ``δ`` is None if it is not finite.
     """
-    try:
-        step = solver.solve(-gradient)
-    except NotPositiveDefiniteError:
-        return None, float("nan")
+    step = solver.solve(-gradient)
     if not np.all(np.isfinite(step)):
         return None, float("nan")
     return step, float(np.einsum("i,i->", gradient, step))
