@@ -245,10 +245,9 @@ def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_
         graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information, **options)
     status(f"read {display_name(path)}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
     from posegraph.cli import startup
-    from posegraph.heap import release_free_memory
 
-    if graph.num_edges >= startup.LARGE_GRAPH_EDGES and startup.return_freed_memory():
-        release_free_memory()
+    if graph.num_edges >= startup.LARGE_GRAPH_EDGES:
+        startup.return_freed_memory()  # (read_g2o has just trimmed the heap: what is free is given back)
     return graph, t.seconds
 
 
