@@ -79,7 +79,7 @@ def keep_freed_memory() -> bool:
         libc = ctypes.CDLL(None)
         if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallopt"):
             return False  # not glibc (musl's mallopt ignores these)
-        _KEPT[0] = all(libc.mallopt(ctypes.c_int(key), ctypes.c_int(value)) == 1 for key, value in _MALLOC_SETTINGS.items())
+        _KEPT[0] = _mallopt(_MALLOC_SETTINGS)
         return _KEPT[0]
     except (OSError, AttributeError):
         return False
@@ -103,12 +103,17 @@ def return_freed_memory() -> bool:
     75 s a run against 81–88 s). Applied only where :func:`keep_freed_memory` was; returns whether it was."""
     if not _KEPT[0]:
         return False
+    done = _mallopt(_LEAN_MALLOC_SETTINGS)
+    _KEPT[0] = not done
+    return done
+
+
+def _mallopt(settings: dict) -> bool:
+    """glibc's ``mallopt(key, value)`` for each setting; whether every one was taken."""
     import ctypes
 
     libc = ctypes.CDLL(None)
-    done = all(libc.mallopt(ctypes.c_int(key), ctypes.c_int(value)) == 1 for key, value in _LEAN_MALLOC_SETTINGS.items())
-    _KEPT[0] = not done
-    return done
+    return all(libc.mallopt(ctypes.c_int(key), ctypes.c_int(value)) == 1 for key, value in settings.items())
 
 
 def single_threaded_blas() -> None:
