@@ -129,9 +129,10 @@ def pcg(path: Path) -> None:
     poses = chordal_initialization(graph)
     blocks = linearize(poses, graph)
     layout = symmetric_blocks(pattern)
-    hessian = _block_matrix(pattern, layout, symmetric_block_values(pattern, layout, hessian_values(pattern, blocks.hessian_slice)))
+    values = symmetric_block_values(pattern, layout, hessian_values(pattern, blocks.hessian_slice))
+    hessian = _block_matrix(pattern, layout, values)
     rhs = -gradient_values(pattern, blocks.gradient)
-    inverse = np.linalg.inv(symmetric_block_values(pattern, layout, hessian_values(pattern, blocks.hessian_slice))[layout.diagonal_blocks])
+    inverse = np.linalg.inv(values[layout.diagonal_blocks])
     jacobi = sla.LinearOperator(hessian.shape, matvec=lambda v: (inverse @ v.reshape(-1, d, 1)).ravel())
     for rtol in (1e-4, 1e-8):
         _count_cg(f"{path.name}: block Jacobi", hessian, rhs, rtol, jacobi)
