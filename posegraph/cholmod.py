@@ -194,6 +194,19 @@ class SparseCholesky:
         with _options(cholmod, supernodal=2, postorder=True, nmethods=1), self._threads:
             self._symbolic = cholmod.symbolic(self._matrix, p=_as_index_matrix(permutation), uplo="L")
 
+    @property
+    def factor_bytes(self) -> int | None:
+        """Bytes the numeric factorisation will hold, known from the analysis: L's supernodal values
+        (``xsize`` doubles, amalgamation's explicit zeros included), its row structure (``ssize``
+        indices) and the largest update matrix (``maxcsize`` doubles) — ``8·(xsize + ssize +
+        maxcsize)``, read from CHOLMOD's ``cholmod_factor`` (:func:`_supernodal_sizes`). None when
+        the factor was closed or the structure does not read as CHOLMOD 3's supernodal factor.
+        """
+        if self._symbolic is None:
+            return None
+        sizes = _supernodal_sizes(self._symbolic, self.n)
+        return None if sizes is None else 8 * (sizes["xsize"] + sizes["ssize"] + sizes["maxcsize"])
+
     def factorize(self, data) -> None:
         """Numeric factorisation for values ``data`` ``(nnz,)`` on the analysed pattern.
 
@@ -290,6 +303,39 @@ class SparseCholesky:
         self._factorized = False
         self._symbolic = None
         self._matrix = None
+
+
+_FACTOR_FIELDS = ("n", "minor", "Perm", "ColCount", "IPerm", "nzmax", "p", "i", "x", "z", "nz", "next", "prev",
+                  "nsuper", "ssize", "xsize", "maxcsize", "maxesize", "super", "pi", "px", "s")  # fmt: skip
+"""The word-sized fields at the head of CHOLMOD 3's ``cholmod_factor`` (``cholmod_core.h``), in order;
+two words of ``int`` flags follow (``ordering``, ``is_ll``; ``is_super``, ``is_monotonic``)."""
+
+
+def _supernodal_sizes(capsule, n: int) -> dict[str, int] | None:
+    """The size fields of the analysed supernodal factor in cvxopt's capsule, or None.
+
+    cvxopt exposes no accessor for them, so the struct is read in place (ctypes, read only). The read
+    is trusted only if it describes this factor — ``n`` as analysed, the supernodal flag set, ``0 <
+    nsuper ≤ n`` and ``xsize ≥ n`` — so that another CHOLMOD's layout gives None, not a wrong size.
+    """
+    import ctypes
+
+    get_name = ctypes.pythonapi.PyCapsule_GetName
+    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
+    get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+    if ctypes.sizeof(ctypes.c_size_t) != 8 or type(capsule).__name__ != "PyCapsule":
+        return None
+    name = get_name(capsule)
+    if not name or not name.startswith(b"CHOLMOD FACTOR"):
+        return None
+    words = (ctypes.c_size_t * len(_FACTOR_FIELDS)).from_address(get_pointer(capsule, name))
+    sizes = dict(zip(_FACTOR_FIELDS, words))
+    flags = (ctypes.c_int * 4).from_address(ctypes.addressof(words) + ctypes.sizeof(words))
+    is_super = flags[2]
+    if sizes["n"] != n or is_super != 1 or not 0 < sizes["nsuper"] <= n or sizes["xsize"] < n:
+        return None
+    return {key: sizes[key] for key in ("nsuper", "ssize", "xsize", "maxcsize")}
 
 
 NESTED_DISSECTION_VERTICES = 10_000

@@ -66,6 +66,21 @@ def available() -> bool:
     return True
 
 
+def instead_of_factorisation(reason: str) -> None:
+    """Warn that conjugate gradients solve instead of a factorisation, for ``reason`` (a sentence:
+    :func:`posegraph.heap.factor_exceeds_memory`); without pyamg raise ``ImportError`` saying
+    ``reason``, the install hint and how to factorise anyway."""
+    if not available():
+        raise ImportError(f"{reason}; {INSTALL_HINT} to solve it by conjugate gradients (linear solver 'auto' "
+                          "then does), or ask for linear solver 'cholmod' to factorise anyway")  # fmt: skip
+    import warnings
+
+    from posegraph.errors import PosegraphWarning
+
+    warnings.warn(f"{reason}: solving by multigrid-preconditioned conjugate gradients (linear solver 'pcg')",
+                  PosegraphWarning, stacklevel=4)  # fmt: skip
+
+
 def pose_null_space(group, poses: np.ndarray) -> np.ndarray:
     """``(p·d, d)`` stacked ``Ad(X_k⁻¹)`` for ``poses`` ``(p, k, k)``: the tangent of a global left motion."""
     blocks = group.adjoint(group.inverse(poses))

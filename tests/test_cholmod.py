@@ -244,3 +244,64 @@ def test_block_cholesky_orders_vertex_graphs_and_solves_like_a_dense_solve(order
     factor.factorize(data)
     rhs = rng.normal(size=p * block)
     np.testing.assert_allclose(factor.solve(rhs), np.linalg.solve(matrix, rhs), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("ordering", ["amd", "nesdis", "natural"])
+@pytest.mark.parametrize("seed", range(2))
+def test_factor_bytes_bound_the_factor_it_foresees(ordering, seed):
+    # L from the supernodal factor holds each supernode's lower trapezoid (amalgamation's zeros
+    # included); CHOLMOD stores it as full rectangles (xsize), at most twice that, plus structure
+    # and one update matrix, each no larger than the values.
+    matrix, indptr, indices, data = random_spd(seed, n=300, density=0.02)
+    factor = cholmod.SparseCholesky(indptr, indices, matrix.shape[0], ordering)
+    foreseen = factor.factor_bytes
+    factor.factorize(data)
+    values = factor.factor(release=True)[2]
+    assert 8 * values.size <= foreseen <= 8 * 5 * values.size
+    assert factor.factor_bytes is None  # closed
+
+
+def test_factor_sizes_are_read_only_from_a_factor_of_this_order():
+    matrix, indptr, indices, _ = random_spd(0)
+    factor = cholmod.SparseCholesky(indptr, indices, matrix.shape[0], "amd")
+    assert cholmod._supernodal_sizes(factor._symbolic, matrix.shape[0]) is not None
+    assert cholmod._supernodal_sizes(factor._symbolic, matrix.shape[0] + 1) is None  # not this factor
+    assert cholmod._supernodal_sizes(object(), matrix.shape[0]) is None  # not a capsule
+
+
+# A 3D grid's Laplacian (a 7-point stencil, 40³ unknowns): its factor, ~0.17 GiB under nested
+# dissection, dwarfs the process's other allocations, so the resident peak's growth is the factor's.
+FACTOR_GROWTH = """
+    import numpy as np, scipy.sparse as sp
+    from posegraph import cholmod
+
+    def peak_mib():
+        return int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1]) / 1024
+
+    side = 40
+    path = sp.diags([-np.ones(side - 1), 2.1 * np.ones(side), -np.ones(side - 1)], [-1, 0, 1])
+    eye = sp.identity(side)
+    grid = (sp.kron(sp.kron(path, eye), eye) + sp.kron(sp.kron(eye, path), eye) + sp.kron(sp.kron(eye, eye), path))
+    lower = sp.tril(grid).tocsc()
+    factor = cholmod.SparseCholesky(lower.indptr, lower.indices, lower.shape[0], "nesdis")
+    foreseen = factor.factor_bytes / 2**20
+    open("/proc/self/clear_refs", "w").write("5")
+    before = peak_mib()
+    factor.factorize(lower.data)
+    print(foreseen, peak_mib() - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")
+def test_factor_bytes_foresee_the_resident_growth_of_the_factorisation():
+    import subprocess
+    import textwrap
+    from pathlib import Path
+
+    pytest.importorskip("pymetis", reason="nested dissection needs pymetis")
+    child = subprocess.run([sys.executable, "-c", textwrap.dedent(FACTOR_GROWTH)], capture_output=True, text=True,
+                           timeout=300, cwd=Path(__file__).resolve().parent.parent)  # fmt: skip
+    assert child.returncode == 0, child.stderr
+    foreseen, grown = map(float, child.stdout.split())
+    assert grown > 100  # MiB: the factor is what grows
+    assert foreseen == pytest.approx(grown, rel=0.15)

@@ -51,3 +51,26 @@ def test_freed_heap_pages_are_returned():
 def test_elsewhere_nothing_happens(monkeypatch):
     monkeypatch.setattr(heap, "_trim", lambda: None)
     assert heap.release_free_memory() is False
+
+
+@pytest.mark.skipif(platform.system() != "Linux", reason="/proc/meminfo is Linux's")
+def test_available_memory_is_positive_and_at_most_the_total(monkeypatch):
+    total = int(next(line for line in open("/proc/meminfo") if line.startswith("MemTotal")).split()[1]) * 1024
+    available = heap.available_bytes()
+    assert 0 < available <= total
+    monkeypatch.setattr(heap, "_cgroup_headroom", lambda: 12345)  # a container's limit caps it
+    assert heap.available_bytes() == 12345
+
+
+def test_available_memory_is_unknown_without_meminfo(monkeypatch):
+    import builtins
+
+    real_open = builtins.open
+
+    def no_meminfo(path, *args, **kwargs):
+        if str(path) == "/proc/meminfo":
+            raise FileNotFoundError(path)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", no_meminfo)
+    assert heap.available_bytes() is None

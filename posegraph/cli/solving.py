@@ -25,7 +25,8 @@ def solver_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy", "pcg"), default="auto",
                    help="sparse solver: CHOLMOD (from the cvxopt wheel), scipy's SuperLU, or pcg "
                         "(multigrid-preconditioned conjugate gradients, no factorisation: memory linear "
-                        "in the graph; needs pyamg); auto picks CHOLMOD when cvxopt is installed")
+                        "in the graph; needs pyamg); auto picks CHOLMOD when cvxopt is installed, and "
+                        "pcg when CHOLMOD's factor would not fit in the memory available")
 
 
 def solver_params(args, callback=None):

@@ -144,7 +144,7 @@ def _rotations(graph: PoseGraph, problem: RelativeLeastSquares) -> np.ndarray:
     file_rotations, _ = rotation_blocks(graph.poses, graph.group)  # Sim(3): without the scales
     weights = rotation_weights(graph.information, graph.group)
     null = None
-    if problem.linear_solver == "pcg":  # the odometry's rotations: Y_j ≈ R_zᵀ Y_i along every edge
+    if problem.iterative:  # the odometry's rotations: Y_j ≈ R_zᵀ Y_i along every edge
         null = rotation_blocks(odometry_initialization(graph), graph.group)[0].transpose(0, 2, 1)
     transposed = problem.solve(
         file_rotations.transpose(0, 2, 1),

@@ -44,6 +44,7 @@ import numpy as np
 from posegraph import cholmod as cholmod_library
 from posegraph import multigrid
 from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.heap import factor_exceeds_memory
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
@@ -64,7 +65,8 @@ class RelativeLeastSquares:
         off-diagonal pivoting — on an SPD matrix that is Cholesky in disguise), needing nothing
         beyond scipy; ``"auto"``: CHOLMOD when cvxopt imports, else SuperLU — and SuperLU too
         when CHOLMOD reports the matrix as not positive definite (it can, at round-off level,
-        when the weights span many decades); ``"pcg"``: no factorisation, multigrid-preconditioned
+        when the weights span many decades), or ``"pcg"`` when CHOLMOD's analysis foresees a
+        factor that would not fit in memory (:attr:`iterative`); ``"pcg"``: no factorisation, multigrid-preconditioned
         conjugate gradients on H in r×r block form (:mod:`posegraph.multigrid`, pyamg; its
         near-null space identity blocks, a uniform shift of every ``x_k``), each column of the
         right-hand side to a relative residual of :data:`posegraph.multigrid.DEFAULT_TOLERANCE`.
@@ -130,8 +132,7 @@ class RelativeLeastSquares:
         held = np.asarray(held, dtype=bool) | self.held
         if counted_edges.shape != self.edge_from.shape or held.shape != self.held.shape:
             raise ValueError("counted_edges must have shape (m,) and held (n,)")
-        if self.linear_solver in ("auto", "cholmod") and self._cholesky is None and cholmod_library.load() is not None:
-            self._cholesky = self._symbolic()  # made once here, so that every view shares it
+        self._analysed()  # made once here, so that every view shares it
         view = copy.copy(self)
         view.held, view._counted = held, counted_edges
         view._multigrid = None  # its aggregates are the view's own matrix's
@@ -273,7 +274,7 @@ class RelativeLeastSquares:
         Raises :class:`NotPositiveDefiniteError` when no backend factorises it, or its solution is not finite.
         """
         solve = None
-        if self.linear_solver == "pcg":
+        if self.iterative:
             solve = self._multigrid_solve(data, near_null_space)
         elif self.linear_solver != "scipy":
             if cholmod_library.load() is None and self.linear_solver == "cholmod":
@@ -305,6 +306,29 @@ class RelativeLeastSquares:
         self._multigrid.factorize(matrix, null)
         return self._multigrid.solve
 
+    @property
+    def iterative(self) -> bool:
+        """Whether the solves run by ``"pcg"``: asked for, or ``"auto"`` whose CHOLMOD factor would
+        not fit in memory (:meth:`_analysed`, decided once, at the first call)."""
+        self._analysed()
+        return self.linear_solver == "pcg"
+
+    def _analysed(self):
+        """CHOLMOD's analysis, made once (None on the SuperLU and pcg paths). ``"auto"`` turns to
+        ``"pcg"`` instead when the factor it foresees would not fit in the memory left
+        (:func:`posegraph.heap.factor_exceeds_memory`, :func:`posegraph.multigrid.instead_of_factorisation`)."""
+        if self._cholesky is not None or self.linear_solver not in ("auto", "cholmod") or cholmod_library.load() is None:
+            return self._cholesky
+        cholesky = self._symbolic()
+        reason = factor_exceeds_memory(cholesky.factor_bytes) if self.linear_solver == "auto" else None
+        if reason is None:
+            self._cholesky = cholesky
+            return cholesky
+        cholesky.close()
+        multigrid.instead_of_factorisation(reason)
+        self.linear_solver = "pcg"
+        return None
+
     def _symbolic(self):
         """CHOLMOD's factorisation object for the pattern: ordering and symbolic analysis."""
         return cholmod_library.block_cholesky(
@@ -315,8 +339,7 @@ class RelativeLeastSquares:
     def _cholmod_solve(self, data: np.ndarray):
         """CHOLMOD's solve for the matrix (analysed at the first call), or None when it is not
         positive definite and ``"auto"`` may fall back to SuperLU."""
-        if self._cholesky is None:
-            self._cholesky = self._symbolic()
+        self._analysed()
         try:
             self._cholesky.factorize(data)
         except NotPositiveDefiniteError:

@@ -30,7 +30,10 @@ inversion). :func:`make_linear_solver` picks one by name:
     a relative residual given by Eisenstat and Walker's forcing term (at most 1e-2, tightening as
     LM's gradient falls), ``tolerance`` at the least. Gives no factor (covariances factorise anyway).
 ``"auto"``
-    ``"cholmod"`` when cvxopt imports, else ``"scipy"``.
+    ``"cholmod"`` when cvxopt imports, else ``"scipy"`` — unless CHOLMOD's analysis says its factor
+    would not fit in the memory left (:func:`posegraph.heap.factor_exceeds_memory`): then ``"pcg"`` for a caller
+    that needs no factor (the optimizer), with a warning, or, without pyamg, an ``ImportError``
+    that names the sizes and the install hint instead of a run the system would kill.
 
 A matrix that is not positive definite — or whose factorisation fails numerically in any other
 way (a zero or non-finite pivot, an overflow) — raises :class:`NotPositiveDefiniteError`
@@ -135,6 +138,15 @@ class CholmodSolver(LinearSolver):
 
     def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return self._cholesky.factor(release)
+
+    @property
+    def factor_bytes(self) -> int | None:
+        """Bytes the factorisation will hold (:attr:`posegraph.cholmod.SparseCholesky.factor_bytes`)."""
+        return self._cholesky.factor_bytes
+
+    def close(self) -> None:
+        """Drop the analysis and any factor now."""
+        self._cholesky.close()
 
 
 def vertex_graph(pattern: HessianPattern):
@@ -368,15 +380,19 @@ class MultigridSolver(LinearSolver):
 
 def make_linear_solver(
     kind: str, pattern: HessianPattern, ordering: str = "auto", blas_threads: int | None = 1,
-    tolerance: float = multigrid.DEFAULT_TOLERANCE,
+    tolerance: float = multigrid.DEFAULT_TOLERANCE, *, factor_needed: bool = True,
 ) -> LinearSolver:
     """Build the backend ``kind`` (``"auto"``, ``"cholmod"``, ``"scipy"`` or ``"pcg"``) for ``pattern``.
 
     ``ordering`` and ``blas_threads`` apply to CHOLMOD (``"auto"``:
     :func:`posegraph.cholmod.auto_ordering`; ``blas_threads=None`` leaves the BLAS under CHOLMOD
     as it is), ``tolerance`` to ``"pcg"``. Asking for ``"cholmod"`` without cvxopt, or ``"pcg"``
-    without pyamg, raises ``ImportError`` with the install hint.
+    without pyamg, raises ``ImportError`` with the install hint. ``"auto"`` with
+    ``factor_needed=False`` turns to ``"pcg"`` when CHOLMOD's factor would not fit in memory
+    (:func:`_within_memory`).
     """
+    if kind == "auto" and not factor_needed and cholmod_available():
+        return _within_memory(make_linear_solver("cholmod", pattern, ordering, blas_threads), pattern, tolerance)
     if kind == "auto":
         kind = "cholmod" if cholmod_available() else "scipy"
     if kind == "cholmod":
@@ -393,3 +409,17 @@ def make_linear_solver(
     if kind == "pcg":
         return MultigridSolver(pattern, tolerance)
     raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod', 'scipy' or 'pcg'")
+
+
+def _within_memory(solver: CholmodSolver, pattern: HessianPattern, tolerance: float) -> LinearSolver:
+    """``solver`` if its factor fits in memory (:func:`posegraph.heap.factor_exceeds_memory`), else
+    ``"pcg"`` with a warning (:func:`posegraph.multigrid.instead_of_factorisation`: without pyamg an
+    ``ImportError`` with the sizes and the install hint)."""
+    from posegraph.heap import factor_exceeds_memory
+
+    reason = factor_exceeds_memory(solver.factor_bytes)
+    if reason is None:
+        return solver
+    solver.close()
+    multigrid.instead_of_factorisation(reason)
+    return MultigridSolver(pattern, tolerance)

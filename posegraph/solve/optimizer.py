@@ -101,8 +101,9 @@ def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
     solver = None
     if pattern.num_variables > 0 and graph.num_edges > 0:
         solver = make_linear_solver(
-            params.linear_solver, pattern, params.ordering, params.blas_threads, params.linear_tolerance
-        )
+            params.linear_solver, pattern, params.ordering, params.blas_threads, params.linear_tolerance,
+            factor_needed=False,
+        )  # fmt: skip
     edges = (np.array(graph.edge_from, copy=True), np.array(graph.edge_to, copy=True))
     return Analysis(*edges, held, pattern, solver, time.perf_counter() - start)
 

@@ -235,3 +235,40 @@ def test_pcg_without_pyamg_is_one_line_saying_what_to_install(tmp_path, shared_d
     run = Run([], proc.returncode, proc.stdout, proc.stderr)
     assert_one_error_line(run, "pcg", 'pip install "posegraph[large]"')
     assert not (tmp_path / "o.g2o").exists()
+
+
+# The process sees 1 kB of free memory, so that no Cholesky factor fits.
+NO_MEMORY = ("import sys; import posegraph.heap as heap; heap.available_bytes = lambda: 1000; {hide}"
+             "from posegraph.cli import main; sys.exit(main(['optimize', {source!r}, '-o', {output!r}, '--report', {report!r}, '-q']))")  # fmt: skip
+
+
+def test_auto_solves_by_pcg_when_the_factor_would_not_fit(tmp_path, shared_dataset):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    from posegraph import cholmod
+
+    if cholmod.load() is None:
+        pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")
+    source, output, report = shared_dataset("sphere2500"), tmp_path / "o.g2o", tmp_path / "r.json"
+    code = NO_MEMORY.format(hide="", source=str(source), output=str(output), report=str(report))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=CLI.parent, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert [line for line in proc.stderr.splitlines() if "would take" in line and "solving by multigrid" in line]
+    assert json.loads(report.read_text())["linear_solver"].startswith("pcg")
+    default = run_cli("optimize", source, "-o", tmp_path / "d.g2o", "--report", tmp_path / "d.json", "-q")
+    assert default.returncode == 0, default.stderr
+    costs = [json.loads(path.read_text())["final_cost"] for path in (report, tmp_path / "d.json")]
+    assert costs[0] == pytest.approx(costs[1], rel=1e-9)
+
+
+def test_auto_without_pyamg_when_the_factor_would_not_fit_is_one_line_and_no_output(tmp_path, shared_dataset):
+    from posegraph import cholmod
+
+    if cholmod.load() is None:
+        pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")
+    output = tmp_path / "o.g2o"
+    code = NO_MEMORY.format(hide="sys.modules['pyamg'] = None; ", source=str(shared_dataset("tinyGrid3D")),
+                            output=str(output), report=str(tmp_path / "r.json"))  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=CLI.parent, timeout=120)
+    assert_one_error_line(Run([], proc.returncode, proc.stdout, proc.stderr), "would take", "kiB", 'pip install "posegraph[large]"')
+    assert list(tmp_path.iterdir()) == []

@@ -59,6 +59,28 @@ def test_noise_free_measurements_give_the_truth_through_pcg(name, graph, truth, 
     np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-6, atol=1e-6)
 
 
+def test_auto_turns_to_pcg_when_the_factor_would_not_fit(monkeypatch, cholmod_backend):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    from posegraph import heap, multigrid
+    from posegraph.errors import PosegraphWarning
+    from posegraph.init.chordal import chordal_problem
+
+    graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)
+    monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)
+    monkeypatch.setattr(heap, "available_bytes", lambda: 1000)  # no factor fits in 1 kB
+    assert chordal_problem(graph, linear_solver="cholmod").iterative is False  # asked by name: factorised
+    problem = chordal_problem(graph)
+    with pytest.warns(PosegraphWarning, match="would take"):
+        assert problem.iterative
+    assert problem.linear_solver == "pcg"
+    with pytest.warns(PosegraphWarning, match="would take"):
+        poses = chordal_initialization(graph)
+    np.testing.assert_allclose(poses, synthetic.expected_poses(graph, truth), rtol=1e-6, atol=1e-6)
+    monkeypatch.setattr(multigrid, "available", lambda: False)
+    with pytest.raises(ImportError, match=r"would take .*posegraph\[large\]"):
+        chordal_initialization(graph)
+
+
 def test_cholmod_thread_setting_changes_nothing_but_speed(cholmod_backend):
     """RelativeLeastSquares runs CHOLMOD with one thread by default (posegraph.native_threads); any
     setting gives the same solution, and a nonsense one is refused."""

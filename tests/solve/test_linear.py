@@ -290,3 +290,35 @@ def test_pcg_confirms_convergence_only_after_a_tight_enough_solve(multigrid_avai
     solver.solve(1e-3 * rhs)  # 0.9e-6 ≤ linear.CONVERGENCE_TOLERANCE: trusted as it is
     assert solver.confirm_convergence() is True
     assert make_linear_solver("scipy", pattern).confirm_convergence() is True
+
+
+def test_auto_solves_by_pcg_when_the_factor_would_not_fit_and_a_factor_is_not_needed(monkeypatch, multigrid_available):
+    from posegraph import heap
+    from posegraph.errors import PosegraphWarning
+
+    if not cholmod_available():
+        pytest.skip("CHOLMOD (cvxopt) is not installed")
+    pattern, data, full, rhs = spd_system(2)
+    foreseen = make_linear_solver("cholmod", pattern).factor_bytes
+    monkeypatch.setattr(heap, "available_bytes", lambda: int(foreseen / heap.FACTOR_MEMORY_SHARE) - 1)
+    assert make_linear_solver("auto", pattern).name.startswith("cholmod")  # covariances need the factor
+    with pytest.warns(PosegraphWarning, match=r"Cholesky factor of this graph would take [\d.]+ kiB, more than 75% of the [\d.]+ kiB .* 'pcg'"):
+        solver = make_linear_solver("auto", pattern, factor_needed=False, tolerance=1e-13)
+    assert solver.name.startswith("pcg")
+    solver.factorize(data)
+    np.testing.assert_allclose(solver.solve(rhs), np.linalg.solve(full, rhs), rtol=1e-8, atol=1e-9)
+    for available in (int(foreseen / heap.FACTOR_MEMORY_SHARE) + 1, None):  # fits, or unknown
+        monkeypatch.setattr(heap, "available_bytes", lambda: available)
+        assert make_linear_solver("auto", pattern, factor_needed=False).name.startswith("cholmod")
+
+
+def test_auto_without_pyamg_says_how_large_the_factor_would_be_and_what_to_install(monkeypatch):
+    from posegraph import heap, multigrid
+
+    if not cholmod_available():
+        pytest.skip("CHOLMOD (cvxopt) is not installed")
+    monkeypatch.setattr(heap, "available_bytes", lambda: 1000)
+    monkeypatch.setattr(multigrid, "available", lambda: False)
+    with pytest.raises(ImportError, match=r"would take .*iB.*pip install \"posegraph\[large\]\".*'cholmod'"):
+        make_linear_solver("auto", spd_system(0)[0], factor_needed=False)
+    assert make_linear_solver("cholmod", spd_system(0)[0], factor_needed=False).name.startswith("cholmod")  # asked by name

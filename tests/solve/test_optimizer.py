@@ -471,3 +471,20 @@ def test_pcg_reaches_the_factorisations_optimum_on_standard_files(name, shared_d
     iterative = optimize(graph, params=SolverParams(linear_solver="pcg"))
     assert iterative.converged  # (parking-garage's flat directions leave poses ~4e-3 apart at equal costs)
     assert iterative.final_cost == pytest.approx(direct.final_cost, rel=1e-9)
+
+
+def test_auto_turns_to_pcg_when_the_factor_would_not_fit_and_reaches_the_same_optimum(monkeypatch):
+    pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
+    from posegraph import cholmod, heap
+    from posegraph.errors import PosegraphWarning
+
+    if cholmod.load() is None:
+        pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")
+    graph = PCG_GRAPHS["SE3"]()
+    direct = optimize(graph)
+    assert direct.linear_solver.startswith("cholmod")
+    monkeypatch.setattr(heap, "available_bytes", lambda: 1000)  # no factor fits in 1 kB
+    with pytest.warns(PosegraphWarning, match="would take"):
+        iterative = optimize(graph)
+    assert iterative.linear_solver.startswith("pcg") and iterative.converged
+    assert iterative.final_cost == pytest.approx(direct.final_cost, rel=1e-9)
