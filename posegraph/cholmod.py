@@ -33,6 +33,7 @@ import numpy as np
 __all__ = [
     "NotPositiveDefiniteError", "SparseCholesky", "load", "unavailable_reason", "ORDERINGS", "VERTEX_ORDERINGS",
     "NESTED_DISSECTION_VERTICES", "auto_ordering", "nested_dissection_available", "fill_reducing_order", "block_permutation", "block_cholesky",
+    "block_factor_bytes",
 ]  # fmt: skip
 
 
@@ -457,3 +458,28 @@ def block_cholesky(
     factor = SparseCholesky(indptr, indices, n, ordering, threads, permutation=block_permutation(order, block))
     factor.ordering = ordering
     return factor
+
+
+def block_factor_bytes(block_indptr, block_indices, num_blocks: int, block: int, ordering: str = "auto") -> int | None:
+    """Bytes the supernodal factor of a matrix of dense ``block``×``block`` blocks on this vertex
+    pattern would hold, foreseen from the vertex pattern alone, or None when CHOLMOD does not read.
+
+    The vertex pattern ordered as :func:`block_cholesky` orders it (``"natural"``: as it is;
+    ``"default"``, which orders the scalar pattern: AMD) is analysed symbolically — 1/block² of the
+    entries, ~0.1 s where the scalar analysis takes ~6 s (200k-pose sphere) — and its sizes scaled:
+    ``8·(block²·(xsize + maxcsize) + block·ssize)`` (:attr:`SparseCholesky.factor_bytes`). The
+    vertex analysis amalgamates supernodes as the scalar one does at block size, so this is an
+    estimate from above: 3.87 GiB for the 3.37 GiB the scalar analysis foresees on that sphere.
+    """
+    if ordering == "auto":
+        ordering = auto_ordering(num_blocks)
+    if ordering == "natural":
+        order = np.arange(num_blocks)
+    else:
+        order = fill_reducing_order(block_indptr, block_indices, num_blocks, ordering if ordering in VERTEX_ORDERINGS else "amd")
+    vertices = SparseCholesky(block_indptr, block_indices, num_blocks, permutation=order)
+    sizes = _supernodal_sizes(vertices._symbolic, vertices.n)
+    vertices.close()
+    if sizes is None:
+        return None
+    return 8 * (block**2 * (sizes["xsize"] + sizes["maxcsize"]) + block * sizes["ssize"])

@@ -169,8 +169,10 @@ class RelativeLeastSquares:
         # positions (block, a, b) for every stored block
         base = r * r * blocks_before[cols] + r * rank
         position = base[:, None, None] + axis[None, :, None] + r * count[cols][:, None, None] * axis[None, None, :]
-        self._position = position[block_of].ravel()
         self._nnz = r * r * keys.size
+        # int32 below 2³¹ entries (every pose graph this side of ~10⁸ edges): half the memory of
+        # the scatter map, which lives as long as the problem (r² positions an edge and block)
+        self._position = position[block_of].ravel().astype(np.int32 if self._nnz < 2**31 else np.int64)
         column_counts = np.repeat(r * count, r)  # entries in each scalar column
         self._indptr = np.concatenate([[0], np.cumsum(column_counts)]).astype(np.int32)
         indices = np.empty(self._nnz, dtype=np.int32)
@@ -193,13 +195,18 @@ class RelativeLeastSquares:
         touching a vertex held only by :meth:`restricted` gets zeros there, and such a vertex's
         diagonal block is the identity."""
         layout_from, layout_to, layout_both = self._layout
-        blocks = [
-            weight[layout_to] * self.free_to[layout_to, None, None],
-            transfer[layout_from].transpose(0, 2, 1) @ weight_transfer[layout_from] * self.free_from[layout_from, None, None],
-            -weight_transfer[layout_both] * self.both_free[layout_both, None, None],
-            -weight_transfer[layout_both].transpose(0, 2, 1) * self.both_free[layout_both, None, None],
-        ]
-        data = np.bincount(self._position, weights=np.concatenate([b.ravel() for b in blocks]), minlength=self._nnz)
+        blocks = (  # made one at a time, each added in place: no temporary as large as all four
+            lambda: weight[layout_to] * self.free_to[layout_to, None, None],
+            lambda: transfer[layout_from].transpose(0, 2, 1) @ weight_transfer[layout_from] * self.free_from[layout_from, None, None],
+            lambda: -weight_transfer[layout_both] * self.both_free[layout_both, None, None],
+            lambda: -weight_transfer[layout_both].transpose(0, 2, 1) * self.both_free[layout_both, None, None],
+        )  # fmt: skip
+        data = np.zeros(self._nnz)
+        start = 0
+        for block in blocks:
+            values = block().ravel()
+            np.add.at(data, self._position[start : start + values.size], values)
+            start += values.size
         data[self._pinned] = 1.0
         return data
 
@@ -315,19 +322,20 @@ class RelativeLeastSquares:
 
     def _analysed(self):
         """CHOLMOD's analysis, made once (None on the SuperLU and pcg paths). ``"auto"`` turns to
-        ``"pcg"`` instead when the factor it foresees would not fit in the memory left
-        (:func:`posegraph.heap.factor_exceeds_memory`, :func:`posegraph.multigrid.instead_of_factorisation`)."""
+        ``"pcg"`` instead when the factor foreseen from the vertex pattern would not fit in the
+        memory left (:func:`posegraph.cholmod.block_factor_bytes`,
+        :func:`posegraph.heap.factor_exceeds_memory`, :func:`posegraph.multigrid.instead_of_factorisation`)."""
         if self._cholesky is not None or self.linear_solver not in ("auto", "cholmod") or cholmod_library.load() is None:
             return self._cholesky
-        cholesky = self._symbolic()
-        reason = factor_exceeds_memory(cholesky.factor_bytes) if self.linear_solver == "auto" else None
-        if reason is None:
-            self._cholesky = cholesky
-            return cholesky
-        cholesky.close()
-        multigrid.instead_of_factorisation(reason)
-        self.linear_solver = "pcg"
-        return None
+        if self.linear_solver == "auto":
+            foreseen = cholmod_library.block_factor_bytes(self._block_indptr, self._block_rows, self.num_free, self.block, self.ordering)
+            reason = factor_exceeds_memory(foreseen)
+            if reason is not None:
+                multigrid.instead_of_factorisation(reason)
+                self.linear_solver = "pcg"
+                return None
+        self._cholesky = self._symbolic()
+        return self._cholesky
 
     def _symbolic(self):
         """CHOLMOD's factorisation object for the pattern: ordering and symbolic analysis."""

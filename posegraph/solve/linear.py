@@ -139,14 +139,6 @@ class CholmodSolver(LinearSolver):
     def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return self._cholesky.factor(release)
 
-    @property
-    def factor_bytes(self) -> int | None:
-        """Bytes the factorisation will hold (:attr:`posegraph.cholmod.SparseCholesky.factor_bytes`)."""
-        return self._cholesky.factor_bytes
-
-    def close(self) -> None:
-        """Drop the analysis and any factor now."""
-        self._cholesky.close()
 
 
 def vertex_graph(pattern: HessianPattern):
@@ -389,10 +381,10 @@ def make_linear_solver(
     as it is), ``tolerance`` to ``"pcg"``. Asking for ``"cholmod"`` without cvxopt, or ``"pcg"``
     without pyamg, raises ``ImportError`` with the install hint. ``"auto"`` with
     ``factor_needed=False`` turns to ``"pcg"`` when CHOLMOD's factor would not fit in memory
-    (:func:`_within_memory`).
+    (:func:`_factor_fits`).
     """
-    if kind == "auto" and not factor_needed and cholmod_available():
-        return _within_memory(make_linear_solver("cholmod", pattern, ordering, blas_threads), pattern, tolerance)
+    if kind == "auto" and not factor_needed and cholmod_available() and not _factor_fits(pattern, ordering):
+        return MultigridSolver(pattern, tolerance)
     if kind == "auto":
         kind = "cholmod" if cholmod_available() else "scipy"
     if kind == "cholmod":
@@ -411,15 +403,17 @@ def make_linear_solver(
     raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod', 'scipy' or 'pcg'")
 
 
-def _within_memory(solver: CholmodSolver, pattern: HessianPattern, tolerance: float) -> LinearSolver:
-    """``solver`` if its factor fits in memory (:func:`posegraph.heap.factor_exceeds_memory`), else
-    ``"pcg"`` with a warning (:func:`posegraph.multigrid.instead_of_factorisation`: without pyamg an
-    ``ImportError`` with the sizes and the install hint)."""
+def _factor_fits(pattern: HessianPattern, ordering: str) -> bool:
+    """Whether CHOLMOD's factor of ``pattern``'s matrix fits in memory
+    (:func:`posegraph.cholmod.block_factor_bytes`, :func:`posegraph.heap.factor_exceeds_memory`);
+    if not, the warning, or without pyamg the ``ImportError``, of
+    :func:`posegraph.multigrid.instead_of_factorisation`."""
     from posegraph.heap import factor_exceeds_memory
 
-    reason = factor_exceeds_memory(solver.factor_bytes)
-    if reason is None:
-        return solver
-    solver.close()
-    multigrid.instead_of_factorisation(reason)
-    return MultigridSolver(pattern, tolerance)
+    foreseen = cholmod_library.block_factor_bytes(
+        pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
+    )
+    reason = factor_exceeds_memory(foreseen)
+    if reason is not None:
+        multigrid.instead_of_factorisation(reason)
+    return reason is None
