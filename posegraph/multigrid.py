@@ -66,10 +66,17 @@ def available() -> bool:
     return True
 
 
-def instead_of_factorisation(reason: str) -> None:
-    """Warn that conjugate gradients solve instead of a factorisation, for ``reason`` (a sentence:
-    :func:`posegraph.heap.factor_exceeds_memory`); without pyamg raise ``ImportError`` saying
-    ``reason``, the install hint and how to factorise anyway."""
+def factorisation_fits(block_indptr, block_indices, num_blocks: int, block: int, ordering: str = "auto") -> bool:
+    """Whether CHOLMOD's factor of a matrix of ``block``×``block`` blocks on this vertex pattern fits
+    in memory (:func:`posegraph.cholmod.block_factor_bytes`, :func:`posegraph.heap.factor_exceeds_memory`).
+    When it does not: a warning that conjugate gradients solve instead, saying both sizes, or
+    without pyamg an ``ImportError`` with the sizes, the install hint and how to factorise anyway."""
+    from posegraph import cholmod
+    from posegraph.heap import factor_exceeds_memory
+
+    reason = factor_exceeds_memory(cholmod.block_factor_bytes(block_indptr, block_indices, num_blocks, block, ordering))
+    if reason is None:
+        return True
     if not available():
         raise ImportError(f"{reason}; {INSTALL_HINT} to solve it by conjugate gradients (linear solver 'auto' "
                           "then does), or ask for linear solver 'cholmod' to factorise anyway")  # fmt: skip
@@ -79,6 +86,7 @@ def instead_of_factorisation(reason: str) -> None:
 
     warnings.warn(f"{reason}: solving by multigrid-preconditioned conjugate gradients (linear solver 'pcg')",
                   PosegraphWarning, stacklevel=4)  # fmt: skip
+    return False
 
 
 def pose_null_space(group, poses: np.ndarray) -> np.ndarray:

@@ -44,7 +44,6 @@ import numpy as np
 from posegraph import cholmod as cholmod_library
 from posegraph import multigrid
 from posegraph.cholmod import NotPositiveDefiniteError
-from posegraph.heap import factor_exceeds_memory
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
@@ -65,8 +64,8 @@ class RelativeLeastSquares:
         off-diagonal pivoting — on an SPD matrix that is Cholesky in disguise), needing nothing
         beyond scipy; ``"auto"``: CHOLMOD when cvxopt imports, else SuperLU — and SuperLU too
         when CHOLMOD reports the matrix as not positive definite (it can, at round-off level,
-        when the weights span many decades), or ``"pcg"`` when CHOLMOD's analysis foresees a
-        factor that would not fit in memory (:attr:`iterative`); ``"pcg"``: no factorisation, multigrid-preconditioned
+        when the weights span many decades), or ``"pcg"`` when the factor foreseen from the vertex
+        pattern would not fit in memory (:attr:`iterative`); ``"pcg"``: no factorisation, multigrid-preconditioned
         conjugate gradients on H in r×r block form (:mod:`posegraph.multigrid`, pyamg; its
         near-null space identity blocks, a uniform shift of every ``x_k``), each column of the
         right-hand side to a relative residual of :data:`posegraph.multigrid.DEFAULT_TOLERANCE`.
@@ -323,17 +322,14 @@ class RelativeLeastSquares:
     def _analysed(self):
         """CHOLMOD's analysis, made once (None on the SuperLU and pcg paths). ``"auto"`` turns to
         ``"pcg"`` instead when the factor foreseen from the vertex pattern would not fit in the
-        memory left (:func:`posegraph.cholmod.block_factor_bytes`,
-        :func:`posegraph.heap.factor_exceeds_memory`, :func:`posegraph.multigrid.instead_of_factorisation`)."""
+        memory left (:func:`posegraph.multigrid.factorisation_fits`)."""
         if self._cholesky is not None or self.linear_solver not in ("auto", "cholmod") or cholmod_library.load() is None:
             return self._cholesky
-        if self.linear_solver == "auto":
-            foreseen = cholmod_library.block_factor_bytes(self._block_indptr, self._block_rows, self.num_free, self.block, self.ordering)
-            reason = factor_exceeds_memory(foreseen)
-            if reason is not None:
-                multigrid.instead_of_factorisation(reason)
-                self.linear_solver = "pcg"
-                return None
+        if self.linear_solver == "auto" and not multigrid.factorisation_fits(
+            self._block_indptr, self._block_rows, self.num_free, self.block, self.ordering
+        ):
+            self.linear_solver = "pcg"
+            return None
         self._cholesky = self._symbolic()
         return self._cholesky
 

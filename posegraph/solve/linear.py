@@ -30,8 +30,8 @@ inversion). :func:`make_linear_solver` picks one by name:
     a relative residual given by Eisenstat and Walker's forcing term (at most 1e-2, tightening as
     LM's gradient falls), ``tolerance`` at the least. Gives no factor (covariances factorise anyway).
 ``"auto"``
-    ``"cholmod"`` when cvxopt imports, else ``"scipy"`` — unless CHOLMOD's analysis says its factor
-    would not fit in the memory left (:func:`posegraph.heap.factor_exceeds_memory`): then ``"pcg"`` for a caller
+    ``"cholmod"`` when cvxopt imports, else ``"scipy"`` — unless the factor foreseen from the vertex
+    pattern would not fit in the memory left (:func:`posegraph.multigrid.factorisation_fits`): then ``"pcg"`` for a caller
     that needs no factor (the optimizer), with a warning, or, without pyamg, an ``ImportError``
     that names the sizes and the install hint instead of a run the system would kill.
 
@@ -138,7 +138,6 @@ class CholmodSolver(LinearSolver):
 
     def factor(self, release: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return self._cholesky.factor(release)
-
 
 
 def vertex_graph(pattern: HessianPattern):
@@ -381,9 +380,11 @@ def make_linear_solver(
     as it is), ``tolerance`` to ``"pcg"``. Asking for ``"cholmod"`` without cvxopt, or ``"pcg"``
     without pyamg, raises ``ImportError`` with the install hint. ``"auto"`` with
     ``factor_needed=False`` turns to ``"pcg"`` when CHOLMOD's factor would not fit in memory
-    (:func:`_factor_fits`).
+    (:func:`posegraph.multigrid.factorisation_fits`).
     """
-    if kind == "auto" and not factor_needed and cholmod_available() and not _factor_fits(pattern, ordering):
+    if kind == "auto" and not factor_needed and cholmod_available() and not multigrid.factorisation_fits(
+        pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
+    ):
         return MultigridSolver(pattern, tolerance)
     if kind == "auto":
         kind = "cholmod" if cholmod_available() else "scipy"
@@ -402,18 +403,3 @@ def make_linear_solver(
         return MultigridSolver(pattern, tolerance)
     raise ValueError(f"unknown linear solver {kind!r}: expected 'auto', 'cholmod', 'scipy' or 'pcg'")
 
-
-def _factor_fits(pattern: HessianPattern, ordering: str) -> bool:
-    """Whether CHOLMOD's factor of ``pattern``'s matrix fits in memory
-    (:func:`posegraph.cholmod.block_factor_bytes`, :func:`posegraph.heap.factor_exceeds_memory`);
-    if not, the warning, or without pyamg the ``ImportError``, of
-    :func:`posegraph.multigrid.instead_of_factorisation`."""
-    from posegraph.heap import factor_exceeds_memory
-
-    foreseen = cholmod_library.block_factor_bytes(
-        pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
-    )
-    reason = factor_exceeds_memory(foreseen)
-    if reason is not None:
-        multigrid.instead_of_factorisation(reason)
-    return reason is None
