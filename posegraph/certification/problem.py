@@ -29,20 +29,21 @@ permuted.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, connected_components
+from posegraph.graph import PoseGraph
 from posegraph.errors import GraphError
 
-__all__ = ["SyncProblem", "sync_problem", "isotropic_precisions", "edge_maps", "edge_residuals", "objective",
+__all__ = ["SyncProblem", "sync_problem", "component_problems", "isotropic_precisions", "edge_maps", "edge_residuals", "objective",
            "euclidean_gradient", "data_matrix_blocks", "scatter_to_vertices"]
 
 
 @dataclass(frozen=True, eq=False)
 class SyncProblem:
-    """SE-Sync's problem for one connected pose graph (see the module docstring)."""
+    """SE-Sync's problem for a pose graph, or one of its connected components (see the module docstring)."""
 
     d: int
     """Dimension of the space: 3 (SE(3)) or 2 (SE(2))."""
@@ -80,39 +81,88 @@ def isotropic_precisions(information: np.ndarray, group) -> tuple[np.ndarray, np
 
 
 def sync_problem(graph: PoseGraph) -> SyncProblem:
-    """SE-Sync's problem for ``graph`` (FIX lines play no part: SE-Sync's problem has none).
+    """SE-Sync's problem for ``graph``: its edges and, when it has pose priors, a world vertex.
 
-    Raises :class:`~posegraph.errors.GraphError` for a graph SE-Sync's problem is not defined on:
-    a group other than SE(2)/SE(3) (Sim(3)), prior edges, no edges, several connected components, or information whose κ or τ is not finite and positive.
+    FIX lines play no part (SE-Sync's problem has none). A pose prior ``Z ≈ X_k O`` (residual
+    ``Log(Z⁻¹ X_k O) = Ad_{O⁻¹} Log(P⁻¹ X_k)`` with ``P = Z O⁻¹``) is the edge from a world vertex
+    at the identity to ``k`` measuring ``P`` with information ``Ad_{O⁻¹}ᵀ Ω Ad_{O⁻¹}``: the problem
+    keeps SE-Sync's form, the world vertex is index ``n`` (:attr:`SyncProblem.num_poses` is then
+    ``n + 1``) and the gauge is gone from the components it reaches. Several connected components
+    are one problem whose matrices are block-diagonal (:func:`component_problems` splits them).
+
+    Raises :class:`~posegraph.errors.GraphError` for a graph SE-Sync's problem is not defined on: a
+    group other than SE(2)/SE(3) (Sim(3)), position priors (a point says nothing of a rotation: no
+    term of SE-Sync's form), no edges, or information whose κ or τ is not finite and positive.
     """
     if graph.group.name not in ("SE3", "SE2"):
         raise GraphError(f"SE-Sync's problem is defined on SE(2) and SE(3) graphs, not {graph.group.name}: "
                          "nothing to certify", graph.source)
-    if graph.priors is not None and len(graph.priors):
-        raise GraphError("the graph has prior edges, which SE-Sync's problem has no terms for: a certificate of "
-                         "the graph without them would not be one of this file's problem", graph.source)
-    if graph.num_edges == 0:
+    priors = graph.priors
+    if priors is not None and priors.num_position:
+        raise GraphError("the graph has position priors, which SE-Sync's problem has no terms for (they measure "
+                         "no rotation): nothing to certify", graph.source, _first_line(priors.position_lines))
+    pose_priors = 0 if priors is None else priors.num_pose
+    if graph.num_edges + pose_priors == 0:
         raise GraphError("the graph has no edges: nothing to certify", graph.source)
-    count, _ = connected_components(graph)
-    if count != 1:
-        raise GraphError(f"the graph has {count} connected components; certification needs one", graph.source)
-    d = graph.group.space_dim
+    n, d, group = graph.num_vertices, graph.group.space_dim, graph.group
+    edge_from, edge_to = np.asarray(graph.edge_from, dtype=np.int64), np.asarray(graph.edge_to, dtype=np.int64)
+    measurements, information = graph.measurements, graph.information
+    lines = graph.edge_lines
+    if pose_priors:
+        undo = group.adjoint(group.inverse(priors.pose_offsets))
+        edge_from = np.r_[edge_from, np.full(pose_priors, n, dtype=np.int64)]
+        edge_to = np.r_[edge_to, priors.pose_vertex]
+        measurements = np.concatenate([measurements, priors.pose_measurements @ group.inverse(priors.pose_offsets)])
+        information = np.concatenate([information, np.swapaxes(undo, 1, 2) @ priors.pose_information @ undo])
+        lines = None if lines is None or priors.pose_lines is None else np.r_[lines, priors.pose_lines]
+    kappa, tau = _checked_precisions(information, group, graph.source, lines)
+    return SyncProblem(
+        d=d, num_poses=n + (1 if pose_priors else 0), edge_from=edge_from, edge_to=edge_to,
+        rotations=measurements[:, :d, :d].copy(), translations=measurements[:, :d, d].copy(), kappa=kappa, tau=tau,
+    )  # fmt: skip
+
+
+def _first_line(lines) -> int | None:
+    return None if lines is None or len(lines) == 0 else int(lines[0])
+
+
+def _checked_precisions(information, group, source, lines) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`isotropic_precisions`, or a :class:`GraphError` naming the first edge without positive finite κ, τ."""
     try:
-        kappa, tau = isotropic_precisions(graph.information, graph.group)
+        kappa, tau = isotropic_precisions(information, group)
     except np.linalg.LinAlgError:
-        kappa = tau = np.array([np.nan])
+        kappa = tau = np.full(information.shape[0], np.nan)
     bad = ~(np.isfinite(kappa) & np.isfinite(tau) & (kappa > 0) & (tau > 0))
     if bad.any():
-        e = int(np.flatnonzero(bad)[0]) if bad.shape == (graph.num_edges,) else 0
-        line = None if graph.edge_lines is None else int(graph.edge_lines[e])
+        line = None if lines is None else int(lines[np.flatnonzero(bad)[0]])
         raise GraphError("an information matrix gives no positive finite κ and τ (SE-Sync's isotropic "
                          "precisions): its rotation and translation blocks must be positive definite",
-                         graph.source, line)  # fmt: skip
-    return SyncProblem(
-        d=d, num_poses=graph.num_vertices, edge_from=np.asarray(graph.edge_from, dtype=np.int64),
-        edge_to=np.asarray(graph.edge_to, dtype=np.int64), rotations=graph.measurements[:, :d, :d].copy(),
-        translations=graph.measurements[:, :d, d].copy(), kappa=kappa, tau=tau,
-    )  # fmt: skip
+                         source, line)  # fmt: skip
+    return kappa, tau
+
+
+def component_problems(problem: SyncProblem) -> list[tuple[np.ndarray, SyncProblem]]:
+    """``[(vertices, sub-problem), …]``: one per connected component with at least one edge, ``vertices``
+    ``(n_c,)`` the problem's vertex indices of the component (in order; a world vertex is last)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as components
+
+    n, m = problem.num_poses, problem.num_edges
+    adjacency = coo_matrix((np.ones(m), (problem.edge_from, problem.edge_to)), shape=(n, n))
+    count, labels = components(adjacency, directed=False)
+    edge_label = labels[problem.edge_from]
+    out = []
+    for label in np.unique(edge_label).tolist():  # one pass per component: few
+        vertices = np.flatnonzero(labels == label)
+        index = np.full(n, -1, dtype=np.int64)
+        index[vertices] = np.arange(vertices.size)
+        edges = np.flatnonzero(edge_label == label)
+        out.append((vertices, dataclasses.replace(
+            problem, num_poses=int(vertices.size), edge_from=index[problem.edge_from[edges]],
+            edge_to=index[problem.edge_to[edges]], rotations=problem.rotations[edges],
+            translations=problem.translations[edges], kappa=problem.kappa[edges], tau=problem.tau[edges],
+        )))  # fmt: skip
+    return out
 
 
 def edge_maps(problem: SyncProblem) -> tuple[np.ndarray, np.ndarray]:

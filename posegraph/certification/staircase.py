@@ -21,20 +21,21 @@ translation-explicit form — and the objective ``F = tr(X M Xᵀ)`` (:mod:`pose
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from posegraph.certification.local import translations_given_rotations
-from posegraph.certification.problem import SyncProblem, euclidean_gradient, objective
-from posegraph.certification.verify import Verification, certificate_matrix, lambda_blocks, verify
+from posegraph.certification.local import refine_poses, translations_given_rotations
+from posegraph.certification.problem import SyncProblem, edge_maps, objective
+from posegraph.certification.verify import Verification, certificate_matrix, lambda_blocks
 from posegraph.solve.linear import make_linear_solver
 
-__all__ = ["StaircaseResult", "Preconditioner", "riemannian_staircase", "round_solution", "trust_region"]
+__all__ = ["StaircaseResult", "DataMatrix", "riemannian_staircase", "round_solution", "trust_region"]
 
-GRADIENT_TOLERANCE = 1e-9
-"""Stop the trust region when ‖grad F‖ falls below this, relative to ``max(F, 1)``."""
+GRADIENT_TOLERANCE = 1e-6
+"""Stop the trust region when ``⟨grad F, P grad F⟩`` (the squared gradient in the preconditioner's norm,
+which has the units of F: a Newton-decrement-like measure) falls below this fraction of F."""
+TCG_KAPPA = 0.1
 MAX_TRUST_REGION_ITERATIONS = 500
 MAX_CG_ITERATIONS = 2000
 PRECONDITIONER_REGULARISATION = 1e-6
@@ -43,19 +44,23 @@ PRECONDITIONER_REGULARISATION = 1e-6
 
 @dataclass
 class StaircaseResult:
-    """The staircase's last level and its rounding."""
+    """The best estimate the staircase found and the best lower bound it proved."""
 
-    rounded: np.ndarray
-    """``(n, d, d+1)`` the rounded estimate ``[t_i | R_i]``."""
-    objective: float
-    """``F`` at the rounded estimate."""
-    lambdas: np.ndarray
-    """``(n, d, d)`` Λ at the last critical point."""
+    best: np.ndarray
+    """``(n, d, d+1)`` the rank-d estimate ``[t_i | R_i]``: the start, or the best level's rounding refined by
+    Newton when that is lower — never worse than the start."""
+    best_value: float
+    """``F`` at :attr:`best`."""
+    lower_bound: float
+    """The largest lower bound any level proved (:attr:`Verification.lower_bound`)."""
+    trace: float
+    """``tr Λ`` of the level that proved it."""
     verification: Verification
-    """The PSD test of S there."""
+    """That level's test of Q − Λ."""
     rank: int
-    """The last rank r."""
-    rounding_seconds: float
+    """The last rank r reached."""
+    levels: list = field(default_factory=list)
+    """Per level ``(rank, F at the critical point, F of its rounding, lower bound, θ)``."""
 
 
 def _project(u: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -74,42 +79,60 @@ def _retract(u: np.ndarray, step: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hessian(problem: SyncProblem, u: np.ndarray, gradient: np.ndarray, direction: np.ndarray) -> np.ndarray:
+def _hessian(u: np.ndarray, gradient: np.ndarray, direction: np.ndarray, data: "DataMatrix") -> np.ndarray:
     """Riemannian Hessian of F at ``u`` applied to the tangent ``direction`` (``gradient`` = ∇F(u))."""
-    out = euclidean_gradient(problem, direction)  # 2 Ẋ M (∇F is linear in u)
+    out = data.gradient(direction)  # 2 Ẋ M (∇F is linear in u)
     sym = np.swapaxes(u[:, :, 1:], 1, 2) @ gradient[:, :, 1:]
     out[:, :, 1:] -= direction[:, :, 1:] @ (0.5 * (sym + np.swapaxes(sym, 1, 2)))
     return _project(u, out)
 
 
-class Preconditioner:
-    """``Ẋ ↦ P_u((M + λI)⁻¹ Ẋ)`` rowwise, λ = :data:`PRECONDITIONER_REGULARISATION`·max diag(M) (SE-Sync's
-    regularised Cholesky preconditioner, with its 10⁶ condition-number cap); factorised once."""
+class DataMatrix:
+    """M as a sparse matrix, for ``∇F = 2 X M``, and the factor of ``M + λI``, λ =
+    :data:`PRECONDITIONER_REGULARISATION`·max diag(M), for ``Ẋ ↦ P_u((M + λI)⁻¹ Ẋ)`` rowwise (SE-Sync's
+    regularised Cholesky preconditioner, with its 10⁶ condition-number cap); both made once for the
+    whole staircase (M does not depend on the rank)."""
 
     def __init__(self, problem: SyncProblem):
         matrix = certificate_matrix(problem, np.zeros((problem.num_poses, problem.d, problem.d)))  # S with Λ = 0: M
+        self.sparse = matrix.sparse
         data = matrix.data.copy()
         data[matrix.pattern.diagonal] += PRECONDITIONER_REGULARISATION * float(np.max(data[matrix.pattern.diagonal]))
         self._solver = make_linear_solver("auto", matrix.pattern)
         self._solver.factorize(data)
 
-    def __call__(self, u: np.ndarray, z: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _columns(z: np.ndarray) -> np.ndarray:
+        """``(n, r, q)`` blocks → ``(nq, r)``: the rows of X as columns."""
         n, r, q = z.shape
-        columns = self._solver.solve(np.swapaxes(z, 0, 1).reshape(r, n * q).T)
-        return _project(u, np.swapaxes(columns.T.reshape(r, n, q), 0, 1))
+        return np.swapaxes(z, 1, 2).reshape(n * q, r)
+
+    @staticmethod
+    def _blocks(columns: np.ndarray, shape) -> np.ndarray:
+        n, r, q = shape
+        return np.swapaxes(columns.reshape(n, q, r), 1, 2)
+
+    def gradient(self, u: np.ndarray) -> np.ndarray:
+        """``∇F = 2 X M`` at ``u`` ``(n, r, q)``, as blocks."""
+        return self._blocks(2.0 * (self.sparse @ self._columns(u)), u.shape)
+
+    def __call__(self, u: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The preconditioned tangent ``P_u((M + λI)⁻¹ z)``."""
+        return _project(u, self._blocks(self._solver.solve(self._columns(z)), z.shape))
 
 
-def _truncated_cg(problem, u, gradient, rgrad, radius, precondition):
+def _truncated_cg(u, gradient, rgrad, z, radius, data: DataMatrix, value):
     """Preconditioned Steihaug-Toint tCG for ``min ⟨g, η⟩ + ½⟨η, H η⟩`` within ``‖η‖_P ≤ radius``
-    (Absil et al. Alg. 11; the norm of the preconditioner, as Manopt's ``trs_tCG``): ``(η, H η, ‖η‖_P²)``."""
+    (Absil et al. Alg. 11; the norm of the preconditioner, as Manopt's ``trs_tCG``), from ``z = P g``:
+    ``(η, H η, ‖η‖_P²)``. It stops at ``‖r‖_P ≤ ‖g‖_P min(κ, (‖g‖_P / √F)^θ)``, κ = 0.1, θ = ½ (SE-Sync's
+    STPCG test, measured in the P-norm relative to F so that it does not depend on the scale of the data)."""
     eta, h_eta = np.zeros_like(u), np.zeros_like(u)
     residual = rgrad.copy()
-    z = precondition(u, residual)
-    direction, z_r = -z, np.sum(z * residual)
+    direction, z_r = -z, np.sum(z * rgrad)
     e_pe, e_pd, d_pd = 0.0, 0.0, z_r
-    r0 = np.sqrt(np.sum(residual**2))
+    target = z_r * min(TCG_KAPPA**2, np.sqrt(z_r / value)) if value > 0 else 0.0
     for _ in range(MAX_CG_ITERATIONS):
-        h_dir = _hessian(problem, u, gradient, direction)
+        h_dir = _hessian(u, gradient, direction, data)
         curvature = np.sum(direction * h_dir)
         alpha = z_r / curvature if curvature > 0 else np.inf
         e_pe_new = e_pe + 2.0 * alpha * e_pd + alpha**2 * d_pd
@@ -118,30 +141,35 @@ def _truncated_cg(problem, u, gradient, rgrad, radius, precondition):
             return eta + tau * direction, h_eta + tau * h_dir, radius**2
         eta, h_eta, e_pe = eta + alpha * direction, h_eta + alpha * h_dir, e_pe_new
         residual = residual + alpha * h_dir
-        if np.sqrt(np.sum(residual**2)) <= r0 * min(0.1, np.sqrt(r0)):  # κ = 0.1, θ = 1/2, as SE-Sync's STPCG
-            break
-        z = precondition(u, residual)
+        z = data(u, residual)
         z_r_new = np.sum(z * residual)
+        if z_r_new <= target:
+            break
         beta, z_r = z_r_new / z_r, z_r_new
         direction = -z + beta * direction
         e_pd, d_pd = beta * (e_pd + alpha * d_pd), z_r + beta**2 * d_pd
     return eta, h_eta, e_pe
 
 
-def trust_region(problem: SyncProblem, u: np.ndarray, precondition=None, radius: float = 1.0) -> np.ndarray:
-    """A first-order critical point of F on ``(ℝ^r × St(d, r))^n`` from ``u`` (module docstring);
-    ``precondition(u, z)`` a tangent preconditioner (:class:`Preconditioner`; default: none)."""
-    precondition = (lambda _, z: z) if precondition is None else precondition
-    value = objective(problem, u)
+def trust_region(problem: SyncProblem, u: np.ndarray, data: DataMatrix | None = None,
+                 radius: float | None = None) -> np.ndarray:  # fmt: skip
+    """A first-order critical point of F on ``(ℝ^r × St(d, r))^n`` from ``u`` (module docstring):
+    until ``‖grad F‖_P² ≤`` :data:`GRADIENT_TOLERANCE`·F, P the preconditioner of ``data``
+    (:class:`DataMatrix`, made here if not given); ``radius`` the first trust radius in the P-norm (default √F)."""
+    data = DataMatrix(problem) if data is None else data
+    maps = edge_maps(problem)
+    value = objective(problem, u, maps)
+    radius = np.sqrt(value) if radius is None else radius
     for _ in range(MAX_TRUST_REGION_ITERATIONS):
-        gradient = euclidean_gradient(problem, u)
+        gradient = data.gradient(u)
         rgrad = _project(u, gradient)
-        if np.sqrt(np.sum(rgrad**2)) <= GRADIENT_TOLERANCE * max(value, 1.0):
+        z = data(u, rgrad)
+        if np.sum(z * rgrad) <= GRADIENT_TOLERANCE * value:
             break
-        step, h_step, step_norm_sq = _truncated_cg(problem, u, gradient, rgrad, radius, precondition)
+        step, h_step, step_norm_sq = _truncated_cg(u, gradient, rgrad, z, radius, data, value)
         predicted = -np.sum(rgrad * step) - 0.5 * np.sum(step * h_step)
         trial = _retract(u, step)
-        trial_value = objective(problem, trial)
+        trial_value = objective(problem, trial, maps)
         gain = (value - trial_value) / predicted if predicted > 0 else -1.0
         if gain < 0.25:
             radius *= 0.25
@@ -149,7 +177,7 @@ def trust_region(problem: SyncProblem, u: np.ndarray, precondition=None, radius:
             radius *= 2.0
         if gain > 0.1:
             u, value = trial, trial_value
-        if radius < 1e-14 or predicted <= 1e-15 * max(value, 1.0):
+        if radius**2 < 1e-28 * value or predicted <= 1e-15 * value:
             break
     return u
 
@@ -161,8 +189,10 @@ def _escape(problem: SyncProblem, u: np.ndarray, check: Verification) -> np.ndar
     direction = np.zeros_like(lifted)
     direction[:, r, :] = check.eigenvector.reshape(n, q)
     value = objective(problem, u)
-    alpha = max(16e-6, 10 * 1e-2 / abs(check.min_eigenvalue))
-    while alpha >= 1e-6:
+    # the eigenvector's rotation part is a unit vector over all n blocks: a step of √n moves a block
+    # by O(1) when it is spread evenly; halve until F falls (SE-Sync's backtracking)
+    alpha = np.sqrt(n)
+    while alpha >= 1e-6 * np.sqrt(n):
         trial = _retract(lifted, alpha * direction)
         if objective(problem, trial) < value:
             return trial
@@ -188,19 +218,47 @@ def round_solution(problem: SyncProblem, u: np.ndarray, anchor: int = 0) -> np.n
     return out
 
 
-def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verification, eta: float,
-                         max_rank: int = 10) -> StaircaseResult:  # fmt: skip
-    """Climb from the rank-d saddle ``u`` (with its failed ``check``) until S ⪰ −ηI or rank ``max_rank``."""
-    rank = u.shape[1]
-    lambdas = lambda_blocks(problem, u)
-    precondition = Preconditioner(problem) if not check.positive_semidefinite else None
-    while not check.positive_semidefinite and rank < max_rank:
+def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verification, budget, max_rank: int = 10,
+                         anchor: int = 0) -> StaircaseResult:  # fmt: skip
+    """Climb from the rank-d point ``u`` (with its failed ``check``) until a level's relaxation is solved
+    (Q − Λ proven above −σ with ``dn σ`` within ``budget``'s allowance,
+    :class:`~posegraph.certification.certificate.Budget`: no higher rank can raise the bound by more),
+    an escape fails, or rank ``max_rank``. Each level's point is rounded; the best rounding is refined
+    by Newton at the end and verified at rank d, which certifies it when the relaxation is tight."""
+    from posegraph.certification.certificate import verify_point
+
+    result = StaircaseResult(u, objective(problem, u), check.lower_bound, _trace(problem, u), check, u.shape[1])
+    data, best_rounded, best_rounded_value = DataMatrix(problem), None, np.inf
+    while result.rank < max_rank and not check.positive_semidefinite:
         lifted = _escape(problem, u, check)
         if lifted is None:
             break
-        u, rank = trust_region(problem, lifted, precondition), rank + 1
-        lambdas = lambda_blocks(problem, u)
-        check = verify(certificate_matrix(problem, lambdas), u, eta)
-    start = time.perf_counter()
-    rounded = round_solution(problem, u)
-    return StaircaseResult(rounded, objective(problem, rounded), lambdas, check, rank, time.perf_counter() - start)
+        u = trust_region(problem, lifted, data)
+        result.rank = u.shape[1]
+        rounded = round_solution(problem, u, anchor)
+        value = objective(problem, rounded)
+        if value < best_rounded_value:
+            best_rounded, best_rounded_value = rounded, value
+        lambdas, check = verify_point(problem, u, min(value, result.best_value), budget, anchor)
+        _keep_bound(result, check, lambdas)
+        result.levels.append((result.rank, objective(problem, u), value, check.lower_bound, check.min_eigenvalue))
+    if best_rounded is not None:
+        refined = refine_poses(problem, best_rounded, anchor)[0]
+        refined[:, :, 0] = translations_given_rotations(problem, refined[:, :, 1:], anchor)
+        value = objective(problem, refined)
+        if value < result.best_value:
+            result.best, result.best_value = refined, value
+            lambdas, check = verify_point(problem, refined, value, budget, anchor)
+            _keep_bound(result, check, lambdas)
+    return result
+
+
+def _keep_bound(result: StaircaseResult, check: Verification, lambdas: np.ndarray) -> None:
+    """Keep ``check`` in ``result`` when its lower bound is the best so far."""
+    if check.lower_bound > result.lower_bound:
+        result.lower_bound, result.verification = check.lower_bound, check
+        result.trace = float(np.trace(lambdas, axis1=1, axis2=2).sum())
+
+
+def _trace(problem: SyncProblem, u: np.ndarray) -> float:
+    return float(np.trace(lambda_blocks(problem, u), axis1=1, axis2=2).sum())

@@ -1,4 +1,4 @@
-"""The certificate: Λ(Y), S = M − Λ, and whether S is positive semidefinite (SE-Sync's verification).
+"""The certificate: Λ(Y), S = M − diag(0, Λ), and a proven lower bound on λ_min(Q − Λ).
 
 At a first-order critical point ``Y`` (rank ``r ≥ d``, blocks ``Y_i`` r×d) of SE-Sync's relaxation,
 its Lagrange multiplier is the block-diagonal ``Λ = SymBlockDiag(Yᵀ Y Q)`` (Rosen et al., IJRR
@@ -7,18 +7,41 @@ its Lagrange multiplier is the block-diagonal ``Λ = SymBlockDiag(Yᵀ Y Q)`` (R
     ``Λ_i = Sym(Y_iᵀ (Y Q)_i) = ½ Sym(Y_iᵀ ∇_{Y_i} F)``,
 
 with Q the reduced data matrix (translations eliminated) — equal, when the translations are
-optimal, to the rotation part of ``∇F = 2 X M`` used here. The certificate matrix is, as SE-Sync
-verifies it, the translation-explicit ``S = M − diag(0, Λ)`` ((d+1)n square; it is PSD exactly
-when ``Q − Λ`` is, M's translation block being a connected Laplacian). ``S ⪰ 0`` proves ``Yᵀ Y``
-optimal for the semidefinite relaxation, and ``tr Λ`` is then a lower bound on the optimum of the
-pose-graph problem: ``F(x̂) − tr Λ`` bounds the suboptimality of any estimate x̂ (Theorem 7).
+optimal, to the rotation part of ``∇F = 2 X M`` used here.
 
-Test (SE-Sync's ``fast_verification``): S is numerically PSD when ``S + η I`` has a Cholesky
-factorisation (CHOLMOD, the pattern of the pose graph with (d+1)×(d+1) blocks), ``η`` =
-:data:`DEFAULT_ETA` as SE-Sync's ``min_eig_num_tol``. The minimum eigenvalue is then estimated by
-block inverse iteration with that factor; when the factorisation fails, by inverse iteration with
-``S + σ I`` for the smallest ``σ = 2^k η`` that factorises — its eigenvector is the direction in which
-the Riemannian staircase escapes the saddle.
+**Weak duality with slack.** For *any* symmetric block-diagonal Λ and any feasible Z of the
+relaxation (``Z ⪰ 0``, ``Z_ii = I_d``): ``tr(QZ) = tr((Q − Λ)Z) + tr Λ ≥ tr Λ + dn·min(λ_min(Q − Λ), 0)``,
+since ``tr Z = dn``. So if ``Q − Λ + σI ≻ 0`` then every pose estimate — indeed the relaxation's
+optimum — has ``F ≥ tr Λ − dn·σ``: :attr:`Verification.lower_bound`. This holds whether or not the
+point is optimal; at an optimal point of a tight relaxation it equals F up to ``dn·σ``.
+
+**The test is on Q − Λ, not on S.** ``Q − Λ`` is the Schur complement of the translation block of
+``S = M − diag(0, Λ)`` ((d+1)n square, vertex-interleaved, the pose graph's block pattern). With
+the anchor's translation held (``α e eᵀ`` added to its translation diagonal, α > 0: it leaves the
+Schur complement unchanged because M's translation block is a connected Laplacian ``L`` with
+``1ᵀ [L Ṽ] = 0``) and σ added to the *rotation* diagonal only,
+
+    ``P_σ = S + α e_a e_aᵀ + σ diag(0, I)  ≻ 0   ⇔   Q − Λ + σ I ≻ 0``
+
+(Haynsworth: the translation block ``L + α e eᵀ`` is positive definite). So one sparse Cholesky of
+``P_σ`` (CHOLMOD, no dense Q) proves ``λ_min(Q − Λ) > −σ``. Unlike SE-Sync's test on ``S + ηI``
+(shift on every row), this does not depend on the units of the translations nor on whether they
+are eliminated, and a shift relative to the data (below) makes it invariant under scaling all
+information: S's translation rows scale with ``τ ∝ 1/metre²``, Q and Λ do not.
+
+**The minimum eigenvalue** is estimated with the same factor: block inverse (subspace) iteration on
+``(Q − Λ + σI)⁻¹`` in rotation space — ``P_σ⁻¹ [0; x]`` has rotation part ``(Q − Λ + σI)⁻¹ x`` and
+translation part the optimal translations for it — seeded with the rows of Y (Q − Λ's kernel at a
+critical point) and generic columns, with Rayleigh-Ritz on Q − Λ each step (``S w`` of such a
+full vector has rotation part ``(Q − Λ) y`` and translation part 0). It stops when the smallest
+Ritz pair's residual ``‖(Q − Λ)v − θv‖`` is below :data:`RESIDUAL_TOLERANCE` of the mean rotation
+diagonal: then Q − Λ has an eigenvalue in ``[θ − ρ, θ + ρ]``, and the factor proves none below −σ.
+
+Shifts tried: :data:`SHIFT_FLOOR` of the mean rotation diagonal of M (round-off: it succeeds at a
+certified point), then ``budget`` (the largest shift the caller's tolerance allows), then ×8 until
+the factorisation succeeds; after a failure, one more factorisation at ``−θ + ρ`` (the eigenvalue
+estimate) tightens the proven σ. Up to the Cholesky factorisation's round-off (backward error
+~ε‖P_σ‖, below :data:`SHIFT_FLOOR`), the bound is rigorous.
 """
 
 from __future__ import annotations
@@ -33,15 +56,27 @@ from posegraph.cholmod import NotPositiveDefiniteError
 from posegraph.solve.linear import make_linear_solver
 from posegraph.solve.sparsity import HessianPattern, analyze_pattern, hessian_values
 
-__all__ = ["DEFAULT_ETA", "CertificateMatrix", "lambda_blocks", "certificate_matrix", "Verification", "verify"]
+__all__ = ["DEFAULT_TOLERANCE", "CertificateMatrix", "lambda_blocks", "certificate_matrix", "Verification", "verify",
+           "data_scale"]  # fmt: skip
 
-DEFAULT_ETA = 1e-3
-"""SE-Sync's ``min_eig_num_tol``: S counts as PSD when ``λ_min(S) > −η``."""
-RITZ_ITERATIONS = (4, 40)
-"""Block inverse iterations for the minimum eigenvalue estimate (each one solve with d+3 columns) when S
-is PSD (the null vectors seed the block: λ_min ≈ 0 at once) and when it is not (the eigenvector is
-the staircase's escape direction)."""
-MAX_SHIFT_DOUBLINGS = 60
+DEFAULT_TOLERANCE = 1e-6
+"""η: certified when the proven lower bound L has ``F − L ≤ η F`` (plus round-off, :data:`ROUND_OFF`)."""
+ROUND_OFF = 1e-12
+"""Gap allowed beyond ``η F``, relative to :func:`data_scale` (``tr`` of M's rotation block): what
+rounding alone makes of ``F − tr Λ`` (Λ's entries are sums of ~κ·degree terms), so that a noise-free
+graph (F = 0 to round-off) certifies. It scales with the information and not with the units."""
+SHIFT_FLOOR = 1e-13
+"""The first shift tried, relative to the mean rotation diagonal of M: above Cholesky's round-off on
+the exactly singular Q − Λ of a certified point, and small enough that its slack ``dn σ`` stays
+under :data:`ROUND_OFF`."""
+SHIFT_GROWTH = 8.0
+MAX_SHIFT_STEPS = 40
+RESIDUAL_TOLERANCE = 1e-9
+"""Stop the eigenvalue iteration when the Ritz residual is below this, relative to the mean rotation diagonal."""
+MAX_ITERATIONS = (8, 100)
+"""Subspace iterations at most when the first shift factorises (the kernel seeds converge at once)
+and when it does not (a negative eigenvalue to find: the staircase's escape direction)."""
+GENERIC_COLUMNS = 3
 GOLDEN_ANGLE = 2.399963229728653
 """Frequency step of the generic starting columns (an irrational multiple of π, so no column aliases)."""
 
@@ -51,6 +86,13 @@ def lambda_blocks(problem: SyncProblem, u: np.ndarray, gradient: np.ndarray | No
     gradient = euclidean_gradient(problem, u) if gradient is None else gradient
     product = 0.5 * np.swapaxes(u[:, :, 1:], 1, 2) @ gradient[:, :, 1:]
     return 0.5 * (product + np.swapaxes(product, 1, 2))
+
+
+def data_scale(problem: SyncProblem) -> float:
+    """``tr`` of M's rotation block, ``Σ_e 2dκ_e + τ_e‖t̃_e‖²``: the size of F's data, scaled with the
+    information and invariant under a change of units (the unit of :data:`ROUND_OFF` and the shifts)."""
+    d = problem.d
+    return float(np.sum(2 * d * problem.kappa + problem.tau * np.sum(problem.translations**2, axis=1)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,23 +106,27 @@ class CertificateMatrix:
     """``(nnz,)`` CSC values of the lower triangle of S."""
 
     @cached_property
-    def _columns(self) -> np.ndarray:
-        """``(nnz,)`` column of each stored entry (:attr:`HessianPattern.entry_columns`, made once here)."""
-        return self.pattern.entry_columns
+    def sparse(self):
+        """S as a symmetric scipy CSR matrix."""
+        import scipy.sparse as sp
+
+        p = self.pattern
+        lower = sp.csc_matrix((self.data, p.indices, p.indptr), shape=(p.dimension, p.dimension))
+        return (lower + lower.T - sp.diags(self.data[p.diagonal])).tocsr()
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
-        """``S x`` for ``x`` ``((d+1)n,)`` (lower triangle, its transpose, less the diagonal counted twice)."""
-        p, dim, columns = self.pattern, self.pattern.dimension, self._columns
-        lower = np.bincount(p.indices, weights=self.data * x[columns], minlength=dim)
-        upper = np.bincount(columns, weights=self.data * x[p.indices], minlength=dim)
-        return lower + upper - self.data[p.diagonal] * x
+        """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)``."""
+        return self.sparse @ x
 
     def dense(self) -> np.ndarray:
         """S as a dense array (small graphs, tests)."""
-        p, dim = self.pattern, self.pattern.dimension
-        out = np.zeros((dim, dim))
-        out[p.indices, self._columns] = self.data
-        return out + np.tril(out, -1).T
+        return self.sparse.toarray()
+
+    @property
+    def rotation_rows(self) -> np.ndarray:
+        """``(dn,)`` the rows of S that belong to rotation (Y) columns, in order."""
+        q = self.pattern.block_size
+        return np.flatnonzero(np.arange(self.pattern.dimension) % q)
 
 
 def _diagonal_block_positions(pattern: HessianPattern, problem: SyncProblem) -> np.ndarray:
@@ -104,48 +150,119 @@ def certificate_matrix(problem: SyncProblem, lambdas: np.ndarray) -> Certificate
 
 @dataclass(frozen=True)
 class Verification:
-    """The outcome of the PSD test of S."""
+    """What the test of ``Q − Λ`` found (module docstring)."""
 
     positive_semidefinite: bool
-    """Whether ``S + η I`` factorised (S numerically PSD, SE-Sync's test)."""
+    """Whether ``Q − Λ + σI ≻ 0`` was proven for the ``budget`` shift asked for (or the floor): the slack
+    ``dn σ`` within the caller's tolerance."""
     min_eigenvalue: float
-    """Estimate of ``λ_min(S)`` (smallest Ritz value of the block inverse iteration)."""
+    """θ: the smallest Ritz value of ``Q − Λ`` found (its smallest eigenvalue to within :attr:`residual`)."""
+    residual: float
+    """``‖(Q − Λ)v − θ v‖`` for the unit Ritz vector v: Q − Λ has an eigenvalue within this of θ."""
+    proven_shift: float
+    """σ ≥ 0 with ``Q − Λ + σI ≻ 0`` proven by Cholesky: ``λ_min(Q − Λ) > −σ``."""
+    lower_bound: float
+    """``tr Λ − dn σ``: a lower bound on the global minimum of F (module docstring)."""
     eigenvector: np.ndarray
-    """``((d+1)n,)`` unit vector of that Ritz value (the escape direction when negative)."""
-    shift: float
-    """The σ of the factorised ``S + σ I`` (η when PSD)."""
+    """``((d+1)n,)`` the vector ``[t; v]`` with v the unit Ritz vector and t its optimal translations, so
+    that ``wᵀ S w = vᵀ(Q − Λ)v``: the staircase's escape direction when θ < 0."""
+    factorizations: int
+    """Cholesky factorisations tried."""
 
 
-def verify(matrix: CertificateMatrix, u: np.ndarray, eta: float = DEFAULT_ETA, seed: int = 0) -> Verification:
-    """Test ``S ⪰ −η I`` by Cholesky and estimate ``λ_min(S)`` (module docstring); ``u`` seeds the
-    iteration with S's known null vectors (the rows of X at a critical point)."""
+def verify(matrix: CertificateMatrix, u: np.ndarray, lambdas: np.ndarray, budget: float, scale: float,
+           anchor: int = 0) -> Verification:  # fmt: skip
+    """Prove ``λ_min(Q − Λ) > −σ`` for the smallest σ tried and estimate λ_min (module docstring).
+
+    ``u`` ``(n, r, d+1)``: the point (its rows seed the iteration); ``lambdas`` its Λ blocks;
+    ``budget``: the largest σ whose slack ``dn σ`` the caller's tolerance allows (``positive_semidefinite``
+    says whether it was proven); ``scale``: :func:`data_scale`.
+    """
+    dn = lambdas.shape[0] * lambdas.shape[1]
+    floor = SHIFT_FLOOR * scale / dn
     solver = make_linear_solver("auto", matrix.pattern)
-    diagonal = matrix.pattern.diagonal
-    shift, psd = eta, True
-    for _ in range(MAX_SHIFT_DOUBLINGS):
-        shifted = matrix.data.copy()
-        shifted[diagonal] += shift
+    shift, failed, tried = _first_factorisation(matrix, solver, anchor, [floor, max(budget, floor)])
+    psd = shift <= max(budget, floor)
+    iterations = MAX_ITERATIONS[0 if psd else 1]
+    # a failed shift proves an eigenvalue at or below −failed: iterate until the Ritz value is there too
+    value, residual, vector = _smallest_ritz_pair(matrix, solver, u, iterations, RESIDUAL_TOLERANCE * scale / dn,
+                                                  -failed)  # fmt: skip
+    tighter = max(-value, 0.0) + residual + floor
+    if tighter < shift:
+        tried += 1
         try:
-            solver.factorize(shifted)
-            break
+            _factorize(matrix, solver, anchor, tighter)
+            shift = tighter
         except NotPositiveDefiniteError:
-            psd, shift = False, 2.0 * shift
-    else:
-        raise NotPositiveDefiniteError("the certificate matrix did not factorise for any shift")
-    value, vector = _smallest_ritz_pair(matrix, solver, u, seed, RITZ_ITERATIONS[0 if psd else 1])
-    return Verification(psd, value, vector, shift)
+            pass
+    trace = float(np.trace(lambdas, axis1=1, axis2=2).sum())
+    return Verification(bool(psd), value, residual, shift, trace - dn * shift, vector, tried)
 
 
-def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, seed: int, iterations: int):
-    """Block inverse iteration with the factorised ``S + σ I``: the smallest Ritz pair of S."""
-    dim = matrix.pattern.dimension
-    rows = np.swapaxes(u, 0, 1).reshape(u.shape[1], -1).T  # (dim, r): the rows of X
-    # three fixed, deterministic, generic columns (numpy.random would cost ~17 ms of imports per process)
-    generic = np.cos(np.outer(np.arange(dim) + 1.0, (seed + np.arange(1, 4)) * GOLDEN_ANGLE))
-    block = np.concatenate([rows, generic], axis=1)
+def _factorize(matrix: CertificateMatrix, solver, anchor: int, shift: float) -> None:
+    """Factorise ``P_σ`` (module docstring); :class:`NotPositiveDefiniteError` when it is not positive definite."""
+    q, dim = matrix.pattern.block_size, matrix.pattern.dimension
+    translation = np.arange(dim) % q == 0
+    diagonal = np.where(translation, 0.0, shift)
+    diagonal[anchor * q] = float(np.mean(matrix.data[matrix.pattern.diagonal][translation]))
+    solver.factorize(matrix.data, diagonal)
+
+
+def _first_factorisation(matrix, solver, anchor: int, shifts: list[float]) -> tuple[float, float, int]:
+    """``(σ, the largest σ that failed (−inf: none), factorisations tried)``: the first of ``shifts``, then
+    ×:data:`SHIFT_GROWTH`, whose ``P_σ`` factorises."""
+    tried, failed = 0, -np.inf
+    candidates = list(dict.fromkeys(shifts)) + [shifts[-1] * SHIFT_GROWTH**k for k in range(1, MAX_SHIFT_STEPS)]
+    for shift in candidates:
+        tried += 1
+        try:
+            _factorize(matrix, solver, anchor, shift)
+            return shift, failed, tried
+        except NotPositiveDefiniteError:
+            failed = shift
+    raise NotPositiveDefiniteError(f"the certificate matrix did not factorise for any shift up to {failed:.3g}")
+
+
+def _orthonormalising(columns: np.ndarray) -> np.ndarray:
+    """``T`` ``(k, k)`` with ``columns @ T`` orthonormal: CholeskyQR2 (two passes of ``R⁻¹`` from the Cholesky
+    factor of the Gram matrix; Fukaya et al. 2014) — one small Gram matrix each, where Householder QR of
+    a tall block costs ~20× more — with an eigenvalue fallback for a rank-deficient block."""
+    transform = np.eye(columns.shape[1])
+    for _ in range(2):
+        gram = columns.T @ columns
+        try:
+            step = np.linalg.inv(np.linalg.cholesky(gram).T)
+        except np.linalg.LinAlgError:
+            values, vectors = np.linalg.eigh(gram)
+            keep = values > 1e-14 * values[-1]
+            step = np.zeros_like(gram)
+            step[:, keep] = vectors[:, keep] / np.sqrt(values[keep])
+        columns, transform = columns @ step, transform @ step
+    return transform
+
+
+def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, iterations: int, tolerance: float,
+                        ceiling: float = np.inf):  # fmt: skip
+    """``(θ, residual, [t; v])`` (v a unit vector, t its optimal translations): subspace iteration with the factorised ``P_σ`` (module docstring),
+    until the smallest Ritz pair's residual is below ``tolerance`` and its value at most ``ceiling``."""
+    rows = matrix.rotation_rows
+    dim, r = matrix.pattern.dimension, u.shape[1]
+    seeds = np.swapaxes(u, 0, 1).reshape(r, -1).T[rows]  # (dn, r): the rows of Y
+    # fixed, deterministic, generic columns (numpy.random would cost ~17 ms of imports per process)
+    generic = np.cos(np.outer(np.arange(rows.size) + 1.0, np.arange(1, GENERIC_COLUMNS + 1) * GOLDEN_ANGLE))
+    block = np.linalg.qr(np.concatenate([seeds, generic], axis=1))[0]
     for _ in range(iterations):
-        block, _ = np.linalg.qr(solver.solve(block))
-    applied = np.stack([matrix.matvec(column) for column in block.T], axis=1)
-    values, vectors = np.linalg.eigh(block.T @ applied)
-    vector = block @ vectors[:, 0]
-    return float(values[0]), vector / np.linalg.norm(vector)
+        full = np.zeros((dim, block.shape[1]))
+        full[rows] = block
+        full = solver.solve(full)
+        full = full @ _orthonormalising(full[rows])  # rotation part orthonormal, translations follow linearly
+        basis = full[rows]
+        applied = matrix.matvec(full)[rows]
+        ritz = basis.T @ applied
+        values, vectors = np.linalg.eigh(0.5 * (ritz + ritz.T))
+        residuals = np.linalg.norm(applied @ vectors - (basis @ vectors) * values, axis=0)
+        block = basis @ vectors
+        if residuals[0] <= tolerance and values[0] <= ceiling:
+            break
+    vector = full @ vectors[:, 0]
+    return float(values[0]), float(residuals[0]), vector / np.linalg.norm(vector[rows])

@@ -11,6 +11,7 @@ import posegraph
 from posegraph.certification.certificate import certify
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import sync_problem
+from posegraph.certification.verify import data_scale
 from posegraph.lie.group import SE2, SE3
 from tests.certification.graphs import loop_graph
 from tests.init.synthetic import expected_poses, random_rotations
@@ -24,7 +25,8 @@ def test_exact_graph_certifies_with_zero_bound(group):
     certificate = posegraph.certify(graph)
     assert certificate.certified and certificate.status == "certified"
     assert certificate.rank == group.space_dim
-    assert abs(certificate.sesync_objective) < 1e-12 and abs(certificate.suboptimality_bound) < 1e-9
+    scale = data_scale(sync_problem(graph))  # F's size: the bound is round-off of it
+    assert abs(certificate.sesync_objective) < 1e-25 * scale and 0 <= certificate.suboptimality_bound <= 1e-12 * scale
     np.testing.assert_allclose(certificate.poses, expected_poses(graph, truth), atol=1e-7)
     assert set(certificate.seconds) == {"candidate", "refine", "verify"}
 
@@ -50,9 +52,10 @@ def test_perturbed_estimate_is_not_certified(group):
     moved[7] = moved[7] @ group.exp(np.r_[np.full(group.dim - 1, 0.0), 0.2] if group is SE2 else np.r_[0.2, 0, 0, 0, 0, 0])
     certificate = certify(graph, poses=moved)
     assert not certificate.certified
-    assert certificate.min_eigenvalue < -certificate.eta
+    assert certificate.min_eigenvalue < 0 and certificate.proven_min_eigenvalue < certificate.min_eigenvalue
     assert certificate.sesync_objective > optimum.sesync_objective
-    assert certificate.status.startswith("not certified: S has a negative eigenvalue")
+    assert certificate.lower_bound <= optimum.sesync_objective  # a proven bound, wherever it is read
+    assert certificate.status.startswith("not certified: Q − Λ has a negative eigenvalue")
 
 
 @pytest.mark.parametrize("group, seed", [(SE2, 0), (SE3, 1)], ids=["SE2", "SE3"])
@@ -65,7 +68,7 @@ def test_relaxation_not_tight_is_not_certified(group, seed):
     assert certificate.rank > group.space_dim
     assert certificate.suboptimality_bound > 1e-3 * certificate.sesync_objective
     assert "not tight" in certificate.status or "negative eigenvalue" in certificate.status
-    assert "staircase" in certificate.seconds and "rounding" in certificate.seconds
+    assert "staircase" in certificate.seconds
 
 
 def _random_start_minimum(problem, rng, group):
@@ -83,7 +86,7 @@ def test_never_a_false_yes(group, seed):
     graph, _ = loop_graph(seed, n=10, loops=10, rotation_noise=1.0, translation_noise=0.5, group=group)
     certificate = certify(graph)
     if not certificate.certified:
-        assert certificate.suboptimality_bound > 0 or certificate.min_eigenvalue < -certificate.eta
+        assert certificate.suboptimality_bound > certificate.eta * certificate.sesync_objective
         return
     problem, rng = sync_problem(graph), np.random.default_rng(seed)
     lowest = min(_random_start_minimum(problem, rng, group) for _ in range(15))

@@ -7,7 +7,8 @@ import pytest
 
 from posegraph.certification.local import translations_given_rotations
 from posegraph.certification.problem import (
-    data_matrix_blocks, edge_residuals, euclidean_gradient, isotropic_precisions, objective, sync_problem,
+    component_problems, data_matrix_blocks, edge_residuals, euclidean_gradient, isotropic_precisions, objective,
+    sync_problem,
 )
 from posegraph.errors import GraphError
 from posegraph.lie.group import SE2, SE3
@@ -91,29 +92,64 @@ def test_reduced_matrix_is_the_minimum_over_translations(group):
     assert objective(problem, moved) > objective(problem, u)
 
 
-def test_refuses_two_components_and_singular_information():
+def test_components_split_into_their_own_problems_and_singular_information_is_refused():
+    """Cutting the chain 2 → 3 gives two problems whose F add up to the whole's."""
     graph, _ = loop_graph(6, n=6, loops=0)
     keep = graph.edge_from != 2  # cut the chain 2 → 3
     import dataclasses
 
     cut = dataclasses.replace(graph, edge_from=graph.edge_from[keep], edge_to=graph.edge_to[keep],
                               measurements=graph.measurements[keep], information=graph.information[keep])
-    with pytest.raises(GraphError, match="2 connected components"):
-        sync_problem(cut)
+    problem = sync_problem(cut)
+    parts = component_problems(problem)
+    assert [list(v) for v, _ in parts] == [[0, 1, 2], [3, 4, 5]]
+    u = np.concatenate([graph.poses[:, :3, 3:], graph.poses[:, :3, :3]], axis=2)
+    assert sum(objective(sub, u[v]) for v, sub in parts) == pytest.approx(objective(problem, u), rel=1e-12)
     information = graph.information.copy()
     information[1, 3:, 3:] = 0.0
     with pytest.raises(GraphError, match="κ and τ"):
         sync_problem(dataclasses.replace(graph, information=information))
 
 
-def test_a_similarity_graph_or_one_with_priors_is_refused_not_certified():
-    """SE-Sync's problem has no scale and no unary terms: certifying such a graph would certify another problem."""
+@pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
+def test_pose_priors_are_edges_from_a_world_vertex(group):
+    """A pose prior ``Z ≈ X O`` (an offset in 3D) is the edge world → k measuring ``Z O⁻¹`` with information
+    ``Ad_{O⁻¹}ᵀ Ω Ad_{O⁻¹}``: the same g2o cost as the prior, for any poses."""
+    import dataclasses
+
+    from posegraph.certification.certificate import isotropic_graph
+    from posegraph.graph import PoseGraph
+    from posegraph.solve.residuals import cost
+    from posegraph.solve.unary import prior_cost
+    from tests.solve.test_unary import chain_graph, make_priors
+
+    rng = np.random.default_rng(7)
+    priors = make_priors(rng, group, 6)
+    priors = dataclasses.replace(priors, position_vertex=priors.position_vertex[:0],
+                                 position_measurements=priors.position_measurements[:0],
+                                 position_information=priors.position_information[:0])  # fmt: skip
+    graph = chain_graph(rng, group, priors=priors)
+    problem = sync_problem(graph)
+    assert problem.num_poses == 7 and problem.num_edges == graph.num_edges + 2
+    world = np.r_[graph.poses, np.eye(group.matrix_size)[None]]
+    edges = slice(graph.num_edges, None)
+    undo = group.adjoint(group.inverse(priors.pose_offsets))
+    as_edges = PoseGraph(ids=np.arange(7), poses=world, edge_from=problem.edge_from[edges],
+                         edge_to=problem.edge_to[edges], measurements=priors.pose_measurements @ group.inverse(priors.pose_offsets),
+                         information=np.swapaxes(undo, 1, 2) @ priors.pose_information @ undo, group=group)  # fmt: skip
+    assert cost(as_edges, world) == pytest.approx(prior_cost(graph.poses, graph), rel=1e-10)
+    assert isotropic_graph(graph).priors is None
+
+
+def test_a_similarity_graph_or_one_with_position_priors_is_refused_not_certified():
+    """SE-Sync's problem has no scale and no terms for a position alone: certifying such a graph would
+    certify another problem."""
     from datasets.synthetic import monocular
     from tests.solve.test_unary import chain_graph, make_priors
 
     with pytest.raises(GraphError, match="SE\\(2\\) and SE\\(3\\)"):
         sync_problem(monocular(laps=2, nodes_per_lap=20).graph)
     rng = np.random.default_rng(5)
-    with pytest.raises(GraphError, match="prior edges"):
+    with pytest.raises(GraphError, match="position priors"):
         sync_problem(chain_graph(rng, SE3, priors=make_priors(rng, SE3, 6)))
     sync_problem(chain_graph(rng, SE3))  # the same chain without priors is SE-Sync's problem

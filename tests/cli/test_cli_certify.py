@@ -13,8 +13,9 @@ from posegraph.lie.group import SE2, SE3
 from tests.certification.graphs import loop_graph
 from tests.cli.conftest import assert_one_error_line, run_cli
 
-REPORT_FIELDS = {"certified", "sesync_objective", "dual_bound", "suboptimality_bound", "min_eigenvalue", "rank",
-                 "seconds", "eta", "status"}
+REPORT_FIELDS = {"certified", "sesync_objective", "lower_bound", "dual_bound", "suboptimality_bound",
+                 "relative_suboptimality", "min_eigenvalue", "eigenvalue_residual", "proven_min_eigenvalue", "rank",
+                 "components", "seconds", "eta", "status"}
 
 
 def _graph_file(tmp_path, group, name="in.g2o", **noise):
@@ -54,21 +55,64 @@ def test_not_certified_exit_one_prints_the_bound(tmp_path):
 
 def test_bad_input_exit_two_writes_nothing(tmp_path):
     graph, _ = loop_graph(6, n=6, loops=0)
-    keep = graph.edge_from != 2
     import dataclasses
 
+    information = graph.information.copy()
+    information[2, 3:, 3:] = 0.0  # no τ: SE-Sync's problem is not defined
+    write_g2o(tmp_path / "singular.g2o", dataclasses.replace(graph, information=information))
+    run = run_cli("certify", tmp_path / "singular.g2o", "-o", tmp_path / "o.g2o", "--report", tmp_path / "r.json",
+                  "-q")
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr_lines[-1].startswith("posegraph: error: ") and "κ and τ" in run.stderr_lines[-1]
+    assert not (tmp_path / "o.g2o").exists() and not (tmp_path / "r.json").exists()
+    assert_one_error_line(run_cli("certify", tmp_path / "missing.g2o"), "missing.g2o")
+    write_g2o(tmp_path / "ok.g2o", graph)
+    same = run_cli("certify", tmp_path / "ok.g2o", "-o", tmp_path / "ok.g2o", "-q")
+    assert_one_error_line(same)
+    for bad in ("0", "-1", "nan", "inf"):
+        assert_one_error_line(run_cli("certify", tmp_path / "ok.g2o", "--eta", bad), "--eta")
+
+
+def test_two_components_are_certified_each_in_its_own_gauge(tmp_path):
+    """A graph in two pieces: certified piece by piece, F the sum, each piece anchored at its smallest id."""
+    import dataclasses
+
+    from posegraph.certification.certificate import certify
+
+    graph, _ = loop_graph(6, n=12, loops=0, rotation_noise=0.05, translation_noise=0.05)
+    keep = graph.edge_from != 5
     cut = dataclasses.replace(graph, edge_from=graph.edge_from[keep], edge_to=graph.edge_to[keep],
                               measurements=graph.measurements[keep], information=graph.information[keep])
     write_g2o(tmp_path / "cut.g2o", cut)
-    run = run_cli("certify", tmp_path / "cut.g2o", "-o", tmp_path / "o.g2o", "--report", tmp_path / "r.json", "-q")
-    assert run.returncode == 2 and "Traceback" not in run.stderr  # the reader also warns of the two components
-    assert run.stderr_lines[-1].startswith("posegraph: error: ") and "certification needs one" in run.stderr_lines[-1]
-    assert not (tmp_path / "o.g2o").exists() and not (tmp_path / "r.json").exists()
-    assert_one_error_line(run_cli("certify", tmp_path / "missing.g2o"), "missing.g2o")
-    same = run_cli("certify", tmp_path / "cut.g2o", "-o", tmp_path / "cut.g2o", "-q")
-    assert_one_error_line(same)
-    with pytest.warns(InputWarning, match="2 connected components"):
-        assert read_g2o(tmp_path / "cut.g2o").num_edges == cut.num_edges
+    run = run_cli("certify", tmp_path / "cut.g2o", "-o", tmp_path / "o.g2o", "--report", tmp_path / "r.json")
+    assert run.returncode == 0, run.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["certified"] and report["components"] == 2 and "(2 components)" in run.stdout
+    halves = [dataclasses.replace(cut, ids=cut.ids[part], poses=cut.poses[part], fixed=cut.fixed[part],
+                                  edge_from=cut.edge_from[edges] - part[0], edge_to=cut.edge_to[edges] - part[0],
+                                  measurements=cut.measurements[edges], information=cut.information[edges],
+                                  edge_source=None, edge_lines=None)  # fmt: skip
+              for part, edges in ((np.arange(6), cut.edge_to < 6), (np.arange(6, 12), cut.edge_from >= 6))]
+    each = [certify(half) for half in halves]
+    assert report["sesync_objective"] == pytest.approx(sum(c.sesync_objective for c in each), rel=1e-9)
+    out = read_g2o(tmp_path / "o.g2o")
+    for half, c, part in zip(halves, each, (np.arange(6), np.arange(6, 12))):
+        np.testing.assert_allclose(out.poses[part[0]], cut.poses[part[0]], atol=1e-6)  # its anchor kept
+        np.testing.assert_allclose(out.poses[part], c.poses, atol=1e-6)
+
+
+def test_eta_given_on_the_command_line_is_the_tolerance_used(tmp_path):
+    """A graph whose relaxation is not tight: its relative gap g decides — certified with --eta above g, not below."""
+    from datasets.certify_cases import lattice
+
+    write_g2o(tmp_path / "grid.g2o", lattice(2, 6, 0.6, 0.6, seed=2))
+    first = run_cli("certify", tmp_path / "grid.g2o", "--report", "-", "-q")
+    gap = json.loads(first.stdout)["relative_suboptimality"]
+    assert first.returncode == 1 and 1e-5 < gap < 0.5, first.stdout
+    loose = run_cli("certify", tmp_path / "grid.g2o", "--report", "-", "-q", "--eta", f"{2 * gap:g}")
+    assert loose.returncode == 0 and json.loads(loose.stdout)["eta"] == pytest.approx(2 * gap, rel=1e-5)
+    tight = run_cli("certify", tmp_path / "grid.g2o", "--report", "-", "-q", "--eta", f"{gap / 2:g}")
+    assert tight.returncode == 1 and not json.loads(tight.stdout)["certified"]
 
 
 @pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
