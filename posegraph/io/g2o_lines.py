@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import numpy as np
 
 from posegraph.errors import G2oFormatError
 from posegraph.io.g2o_format import FIX_TAG, Record
+from posegraph.io.text_input import Block
 
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 
@@ -25,30 +27,30 @@ class Lines(NamedTuple):
     rests: list[str]
 
 
-def group_lines(text: str) -> tuple[dict[str, Lines], dict[str, int]]:
-    """Split ``text`` into lines once and group them by tag (comments and blank lines dropped)."""
-    # Split on "\n" only: str.splitlines would also break on \x0b, \x1c… and shift line numbers.
-    # A trailing "\r" (CRLF) is whitespace to str.split and to numpy's parser alike.
-    lines = text.split("\n")
-    if "#" in text:
-        lines = [line.partition("#")[0] for line in lines]
+def group_lines(blocks: Iterable[Block]) -> tuple[dict[str, Lines], dict[str, int]]:
+    """Group the lines of ``blocks`` (:func:`posegraph.io.text_input.read_blocks`, comments cut off) by
+    tag, blank lines dropped: ``({tag: Lines}, {tag: first line number})``. Only the lines with data are
+    kept, so the memory is the graph's, not the file's."""
     numbers: dict[str, list[int]] = {}
     rests: dict[str, list[str]] = {}
-    for number, line in enumerate(lines, start=1):
-        # Fast path for "TAG fields…"; str.split handles leading blanks, tabs and a bare tag.
-        tag, _, rest = line.partition(" ")
-        if not tag or not tag.isprintable():
-            parts = line.split(None, 1)
-            if not parts:
-                continue
-            tag = parts[0]
-            rest = parts[1] if len(parts) > 1 else ""
-        try:
-            numbers[tag].append(number)
-            rests[tag].append(rest)
-        except KeyError:
-            numbers[tag] = [number]
-            rests[tag] = [rest]
+    for first, lines in blocks:
+        # Lines end at "\n" only: str.splitlines would also break on \x0b, \x1c… and shift line numbers.
+        # A trailing "\r" (CRLF) is whitespace to str.split and to numpy's parser alike.
+        for number, line in enumerate(lines, start=first):
+            # Fast path for "TAG fields…"; str.split handles leading blanks, tabs and a bare tag.
+            tag, _, rest = line.partition(" ")
+            if not tag or not tag.isprintable():
+                parts = line.split(None, 1)
+                if not parts:
+                    continue
+                tag = parts[0]
+                rest = parts[1] if len(parts) > 1 else ""
+            try:
+                numbers[tag].append(number)
+                rests[tag].append(rest)
+            except KeyError:
+                numbers[tag] = [number]
+                rests[tag] = [rest]
     groups = {tag: Lines(np.array(numbers[tag], dtype=np.int64), rests[tag]) for tag in numbers}
     first_line = {tag: numbers[tag][0] for tag in numbers}
     return groups, first_line

@@ -11,8 +11,8 @@ entry there. The format, checks and repairs are described in ``docs/g2o.md``.
 from __future__ import annotations
 
 import os
-import sys
 import warnings
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -31,7 +31,7 @@ from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_e
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
 from posegraph.heap import release_free_memory
-from posegraph.io.text_input import read_text
+from posegraph.io.text_input import Block, read_blocks
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
 
@@ -78,7 +78,7 @@ def read_g2o(
         The ``.g2o`` file: 3D (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, gtsam's older ``VERTEX3`` /
         ``EDGE3``) or 2D (``VERTEX_SE2``, ``EDGE_SE2``), with ``FIX`` lines; see ``docs/g2o.md``
         for the format and the checks. Plain or gzip/bzip2/xz-compressed
-        (:func:`posegraph.io.text_input.read_text`). A file mixing 2D and 3D lines is refused.
+        (:func:`posegraph.io.text_input.read_blocks`, which streams it). A file mixing 2D and 3D lines is refused.
         ``"-"`` reads standard input (messages then name ``<stdin>``).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
@@ -116,20 +116,17 @@ def read_g2o(
     several connected components.
     """
     name = os.fspath(path)
-    if name == "-":  # standard input, as g2o's and Unix tools' "-"
-        text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
-        return _parse(text, "<stdin>", None, require_edges, repair_information, (edge2_information, poses_only))
-    text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
-    graph = _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
-    del text
-    release_free_memory()  # the text's and the tokens' pages, which the solver's large arrays would not reuse
+    shown, source = ("<stdin>", None) if name == "-" else (name, os.path.abspath(name))  # "-": as Unix tools
+    blocks = read_blocks(name)  # gzip/bzip2/xz undone; a binary file refused at its first block
+    graph = _parse(blocks, shown, source, require_edges, repair_information, (edge2_information, poses_only))
+    release_free_memory()  # the lines' and the tokens' pages, which the solver's large arrays would not reuse
     return graph
 
 
 def _parse(
-    text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
+    blocks: Iterable[Block], path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
 ) -> PoseGraph:
-    groups, first_line = group_lines(text)
+    groups, first_line = group_lines(blocks)
     if is_sim3_file(groups):  # VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP: their own module
         return read_sim3(groups, first_line, path, source, require_edges=require_edges, repair_information=repair_information)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
