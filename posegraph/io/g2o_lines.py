@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError
+from posegraph.errors import G2oFormatError, excerpt
 from posegraph.io.g2o_format import FIX_TAG, Record
 from posegraph.io.text_input import Block
 
@@ -109,10 +109,10 @@ def _diagnose_line(
     for k, token in enumerate(tokens):
         if k < n_ints:
             if not _is_integer(token):
-                reason = f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not an integer id"
+                reason = f"{tag} field {k + 1} ({fields[k]}) is {excerpt(token)}, not an integer id"
                 return G2oFormatError(reason, path, number)
         elif not _is_number(token):
-            return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not a number", path, number)
+            return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {excerpt(token)}, not a number", path, number)
     return None
 
 
@@ -149,7 +149,7 @@ def parse_fix(lines: Lines, path: str) -> tuple[np.ndarray, np.ndarray, G2oForma
             return np.zeros(0, np.int64), np.zeros(0, np.int64), error
         for k, token in enumerate(tokens):
             if not _is_integer(token):
-                error = G2oFormatError(f"{FIX_TAG} field {k + 1} is {token!r}, not an integer id", path, number)
+                error = G2oFormatError(f"{FIX_TAG} field {k + 1} is {excerpt(token)}, not an integer id", path, number)
                 return np.zeros(0, np.int64), np.zeros(0, np.int64), error
             ids.append(int(token))
             numbers.append(number)

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning
+from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, excerpt
 from posegraph.graph import EdgeSource, PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
@@ -211,7 +211,7 @@ def _skipped_note(skipped: dict[str, int], first_line: dict[str, int], path: str
     """One warning counting the lines whose tags are not read, per tag."""
     if not skipped:
         return []
-    listing = ", ".join(f"{tag} ×{count}" for tag, count in sorted(skipped.items()))
+    listing = ", ".join(f"{excerpt(tag, quoted=False)} ×{count}" for tag, count in sorted(skipped.items()))
     first = min(first_line[tag] for tag in skipped)
     count = sum(skipped.values())
     return [f"{path}:{first}: skipped {count} line(s) with tags posegraph does not read: {listing}"]
@@ -294,11 +294,11 @@ def _first_unread_line(skipped: dict[str, int], first_line: dict[str, int]) -> s
     if not skipped:
         return ""
     first = next(iter(skipped))
-    text = f"; its first line with data, line {first_line[first]}, begins with {first[:40]!r}"
+    text = f"; its first line with data, line {first_line[first]}, begins with {excerpt(first)}"
     others = [tag for tag in skipped if tag != first and tag[:1].isupper() and tag.replace(":", "_").isidentifier()
               and tag.upper() == tag]
     if others:
-        text += " (other tags: " + ", ".join(others[:3]) + (", …" if len(others) > 3 else "") + ")"
+        text += " (other tags: " + ", ".join(excerpt(tag, quoted=False) for tag in others[:3]) + (", …" if len(others) > 3 else "") + ")"
     return text
 
 

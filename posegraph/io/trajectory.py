@@ -30,7 +30,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from posegraph.atomic import write_text_atomic
-from posegraph.errors import InputError, InputWarning
+from posegraph.errors import InputError, InputWarning, excerpt
 from posegraph.io.text_input import Block, read_blocks, text_blocks
 from posegraph.lie import so3
 from posegraph.lie.group import embed_in_se3
@@ -147,7 +147,7 @@ def _numeric_rows(source, path: str, widths: tuple[int, ...], layout: str) -> tu
     bad = _first_non_finite(rows, values)
     if bad is not None:
         k, token = bad
-        raise InputError(f"field {token!r} is not a finite number ({layout})", path, int(numbers[k]))
+        raise InputError(f"field {excerpt(token)} is not a finite number ({layout})", path, int(numbers[k]))
     return values, numbers
 
 
