@@ -101,10 +101,11 @@ it (H, cvxopt's copy of it, an iteration's per-edge temporaries: 1.9 GiB beside 
 def factor_exceeds_memory(needed: int | None) -> str | None:
     """Why a factor of ``needed`` bytes would not fit (:data:`FACTOR_MEMORY_SHARE`), or None when it
     fits or either size is unknown (then factorising is tried, as it always was)."""
-    limit = memory_limit()
-    if needed is None or limit is None or needed <= FACTOR_MEMORY_SHARE * limit[0]:
+    available = available_bytes()
+    if needed is None or available is None or needed <= FACTOR_MEMORY_SHARE * available:
         return None
-    available, what = limit
+    limit = memory_limit()  # which limit that was, for the message
+    what = limit[1] if limit is not None and limit[0] == available else "memory available"
     return (f"the Cholesky factor of this graph would take {_readable(needed)}, more than "
             f"{FACTOR_MEMORY_SHARE:.0%} of the {_readable(available)} of {what}")  # fmt: skip
 
