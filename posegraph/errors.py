@@ -8,7 +8,20 @@ problem is not tied to one line) and the reason, and prints as
 
 from __future__ import annotations
 
-__all__ = ["InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning"]
+__all__ = ["excerpt", "QUOTED_CHARS", "InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning"]
+
+
+QUOTED_CHARS = 60
+"""The most characters a message quotes from a user's file: a line or a field of any length gives a
+message one can read (a 100 MB field once gave a 105 MB error line)."""
+
+
+def excerpt(text: str, *, quoted: bool = True) -> str:
+    """``text`` as a message shows it: cut to :data:`QUOTED_CHARS` characters with an ellipsis when
+    longer, and ``repr``'d when ``quoted`` (so that blanks and control characters show)."""
+    if len(text) > QUOTED_CHARS:
+        text = text[: QUOTED_CHARS - 1] + "…"
+    return repr(text) if quoted else text
 
 
 class InputError(ValueError):

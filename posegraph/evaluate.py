@@ -354,9 +354,11 @@ def chain_odometry(
 
 def _is_gtsam_edge_file(path: str) -> bool:
     """True for a file with ``EDGE3`` lines and no ``VERTEX`` line (gtsam's edge-only format)."""
+    from posegraph.io.text_input import read_blocks
+
     has_edge3 = False
-    with open(path, encoding="utf-8", errors="replace") as f:
-        for line in f:
+    for block in read_blocks(path):  # as the g2o reader reads it: memory bounded, binary refused
+        for line in block.lines:
             tag = line.lstrip()[:6]
             if tag.startswith("VERTEX"):
                 return False

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 
-__all__ = ["release_free_memory", "available_bytes", "FACTOR_MEMORY_SHARE", "factor_exceeds_memory"]
+__all__ = ["release_free_memory", "available_bytes", "memory_limit", "FACTOR_MEMORY_SHARE", "factor_exceeds_memory"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -45,21 +45,49 @@ def _cgroup_headroom() -> int | None:
     return max(int(maximum) - int(used), 0) if maximum.isdigit() and used.isdigit() else None
 
 
-def available_bytes() -> int | None:
-    """Memory a new allocation can still get without swapping, in bytes, or None where unknown.
+def _address_space_headroom() -> int | None:
+    """Bytes of address space this process may still map before its ``RLIMIT_AS`` (``ulimit -v``,
+    ``prlimit --as``): the limit less the ``VmSize`` it maps already; None without a limit."""
+    import resource
+
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit == resource.RLIM_INFINITY:
+        return None
+    try:
+        with open("/proc/self/status") as status:
+            size = next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmSize:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+    return max(limit - size, 0)
+
+
+def memory_limit() -> tuple[int, str] | None:
+    """``(bytes, what limits them)``: the least of the memory a new allocation can still get without
+    swapping and the process's own limits, or None where none is known.
 
     The kernel's ``MemAvailable`` estimate (``/proc/meminfo``: free memory plus the page cache and
-    slabs it can reclaim), capped by the cgroup's headroom when a container sets ``memory.max``
-    (the host's meminfo does not see that limit). Linux only; None elsewhere.
+    slabs it can reclaim); the cgroup's headroom when a container sets ``memory.max`` (the host's
+    meminfo does not see that limit); the address space left under ``RLIMIT_AS``, where an
+    allocation beyond it fails (MemoryError) however much memory is free. Linux only.
     """
+    found = []
     try:
         with open("/proc/meminfo") as meminfo:
             fields = dict(line.split(":", 1) for line in meminfo if ":" in line)
-        available = int(fields["MemAvailable"].split()[0]) * 1024
+        found.append((int(fields["MemAvailable"].split()[0]) * 1024, "memory available"))
     except (OSError, KeyError, ValueError):
-        return None
-    headroom = _cgroup_headroom()
-    return available if headroom is None else min(available, headroom)
+        pass
+    for headroom, what in ((_cgroup_headroom(), "memory left under the cgroup's memory.max"),
+                           (_address_space_headroom(), "address space left under the process's limit (ulimit -v)")):
+        if headroom is not None:
+            found.append((headroom, what))
+    return min(found, key=lambda pair: pair[0]) if found else None
+
+
+def available_bytes() -> int | None:
+    """Memory a new allocation can still get, in bytes (:func:`memory_limit`), or None where unknown."""
+    limit = memory_limit()
+    return None if limit is None else limit[0]
 
 
 FACTOR_MEMORY_SHARE = 0.75
@@ -76,8 +104,10 @@ def factor_exceeds_memory(needed: int | None) -> str | None:
     available = available_bytes()
     if needed is None or available is None or needed <= FACTOR_MEMORY_SHARE * available:
         return None
+    limit = memory_limit()  # which limit that was, for the message
+    what = limit[1] if limit is not None and limit[0] == available else "memory available"
     return (f"the Cholesky factor of this graph would take {_readable(needed)}, more than "
-            f"{FACTOR_MEMORY_SHARE:.0%} of the {_readable(available)} of memory available")  # fmt: skip
+            f"{FACTOR_MEMORY_SHARE:.0%} of the {_readable(available)} of {what}")  # fmt: skip
 
 
 def _readable(size: int) -> str:

@@ -49,6 +49,48 @@ def test_unknown_or_refused_options_raise_before_any_work(tmp_path):
         check_options(option_argv({"method": "newton"}), "a.g2o", "b.g2o")
 
 
+@pytest.mark.parametrize("vertex_id", [10**21, 2**63])
+def test_a_fix_id_beyond_int64_is_refused_with_the_options(tmp_path, vertex_id):
+    """Not an OverflowError in each file's log: ``optimize``'s usage error, before anything is made."""
+    import posegraph
+
+    (tmp_path / "in.g2o").write_text(MALFORMED)
+    with pytest.raises(BatchError, match=r"argument --fix: too large: .* \(at most 2\^63 - 1 = 9223372036854775807\)"):
+        posegraph.optimize_many([tmp_path / "in.g2o"], tmp_path / "out", fix=[vertex_id])
+    assert sorted(os.listdir(tmp_path)) == ["in.g2o"]
+
+
+def test_a_scheduler_that_does_not_answer_leaves_nothing_behind(tmp_path, monkeypatch):
+    """Nothing is made until the cluster answers; the message says how long it waited."""
+    import socket
+
+    import posegraph
+    import posegraph.batch.cluster as cluster
+
+    import_or_skip("distributed", "--scheduler")
+    monkeypatch.setattr(cluster, "CONNECT_SECONDS", 1)
+    with socket.socket() as probe:  # a port nothing listens on: bound, then freed
+        probe.bind(("127.0.0.1", 0))
+        address = "tcp://127.0.0.1:%d" % probe.getsockname()[1]
+    (tmp_path / "in.g2o").write_text(MALFORMED)
+    with pytest.raises(BatchError) as info:
+        posegraph.optimize_many([tmp_path / "in.g2o"], tmp_path / "out" / "deeper", scheduler=address)
+    message = str(info.value)
+    assert message.startswith(f"cannot reach the Dask scheduler at {address} (waited ") and " s): " in message
+    assert message.endswith("; nothing was written")
+    assert sorted(os.listdir(tmp_path)) == ["in.g2o"]
+
+
+def test_an_output_folder_that_cannot_be_made_is_refused_before_the_cluster(tmp_path):
+    import posegraph
+
+    (tmp_path / "in.g2o").write_text(MALFORMED)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(BatchError, match=f"cannot make the output folder {tmp_path}/file/out: {tmp_path}/file is a file"):
+        posegraph.optimize_many([tmp_path / "in.g2o"], tmp_path / "file" / "out", scheduler="tcp://127.0.0.1:1")
+    assert sorted(os.listdir(tmp_path)) == ["file", "in.g2o"]
+
+
 # --------------------------------------------------------------------------------------------
 # files: names in OUT_DIR and the skip test
 

@@ -120,10 +120,18 @@ def _worker_environment():
 
 
 def _connect(distributed, address: str):
+    """A client of the scheduler at ``address``, tried for :data:`CONNECT_SECONDS`; a
+    :class:`BatchError` saying how long it waited when it does not answer (nothing is written
+    before: OUT_DIR is made only once it answers)."""
+    import time
+
     from posegraph.batch.options import BatchError
 
+    start = time.monotonic()
     try:
         return distributed.Client(address, timeout=CONNECT_SECONDS, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
         text = " ".join(str(exc).split()) or type(exc).__name__
-        raise BatchError(f"cannot reach the Dask scheduler at {address}: {text}") from None
+        waited = time.monotonic() - start
+        raise BatchError(f"cannot reach the Dask scheduler at {address} (waited {waited:.1f} s): {text}; "
+                         "nothing was written") from None

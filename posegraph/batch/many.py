@@ -52,6 +52,7 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
     progress = progress or (lambda row, counts: None)
     if todo:
         with _interrupt_deferred() as interrupted, _client(client, scheduler, workers, len(todo)) as running:
+            _make_out_dir(out_dir, report)  # only now that the cluster answers: a refusal leaves nothing behind
             _run_jobs(running, jobs, todo, rows, progress, interrupted)
     else:
         progress(None, _counts(rows, 0, 0))
@@ -60,8 +61,8 @@ def optimize_many(paths, out_dir, *, client=None, scheduler=None, workers=None, 
 
 
 def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: str) -> list:
-    """The jobs, after every check that can fail before work: options, names, OUT_DIR (made if
-    absent), the summary's path."""
+    """The jobs, after every check that can fail before work: options, names, OUT_DIR (that it is or
+    can be made a folder one can write in; made later, by :func:`_make_out_dir`), the summary's path."""
     from posegraph.batch.files import plan_jobs
     from posegraph.batch.options import BatchError, check_options, option_argv
     from posegraph.batch.rows import csv_path_for
@@ -79,15 +80,47 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: 
         from posegraph.plot import require_matplotlib
 
         require_matplotlib()
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise BatchError(f"the output folder {out_dir} is a file")
-    os.makedirs(out_dir, exist_ok=True)
+    _check_out_dir(out_dir)
     taken = {os.path.realpath(p) for job in jobs for p in (job.input, *job.outputs)}
     for summary in (report, csv_path_for(report)):
-        check_output(summary, what="summary")
+        if not _made_with(summary, out_dir):  # else checked once OUT_DIR is made (_make_out_dir)
+            check_output(summary, what="summary")
         if os.path.realpath(summary) in taken:
             raise BatchError(f"the summary {summary} would be an input or a file's output: choose another --report")
     return jobs
+
+
+def _check_out_dir(out_dir: str) -> None:
+    """A :class:`BatchError` (or :class:`~posegraph.errors.OutputError`) unless OUT_DIR is a folder one
+    can write in, or can be made: its nearest existing ancestor a folder one can create in. Nothing is
+    left behind (the check creates a probe file and removes it)."""
+    from posegraph.batch.options import BatchError
+    from posegraph.cli.common import check_output
+
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise BatchError(f"the output folder {out_dir} is a file")
+    existing = os.path.abspath(out_dir)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise BatchError(f"cannot make the output folder {out_dir}: {existing} is a file")
+    check_output(os.path.join(existing, ".posegraph-out-dir"), what="outputs")
+
+
+def _made_with(path: str, out_dir: str) -> bool:
+    """Whether ``path`` lies in OUT_DIR and OUT_DIR does not exist yet (it is made once the cluster answers)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    return folder == os.path.abspath(out_dir) and not os.path.isdir(folder)
+
+
+def _make_out_dir(out_dir: str, report: str) -> None:
+    """Make OUT_DIR, then check the summary's path as :func:`_plan` did when its folder existed."""
+    from posegraph.batch.rows import csv_path_for
+    from posegraph.cli.common import check_output
+
+    os.makedirs(out_dir, exist_ok=True)
+    for summary in (report, csv_path_for(report)):
+        check_output(summary, what="summary")
 
 
 def _client(client, scheduler, workers, files: int):

@@ -286,13 +286,22 @@ def reader_options(args) -> dict:
     return {"edge2_information": getattr(args, "edge2_information", "auto"), "poses_only": getattr(args, "poses_only", False)}
 
 
+INT_OPTION_MAX = 2**63 - 1
+"""The largest integer an option takes: ids and counts go to numpy's int64 and C longs, where a larger
+one would end in an OverflowError deep inside the work instead of a usage error here."""
+
+
 def non_negative_int(text: str) -> int:
+    """An option's integer ``0 ≤ value ≤`` :data:`INT_OPTION_MAX`, else argparse's usage error naming it."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0: {text}")
+    if value > INT_OPTION_MAX:
+        shown = text if len(text) <= 30 else f"{text[:12]}…({len(text)} digits)"
+        raise argparse.ArgumentTypeError(f"too large: {shown} (at most 2^63 - 1 = {INT_OPTION_MAX})")
     return value
 
 

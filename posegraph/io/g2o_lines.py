@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError
+from posegraph.errors import G2oFormatError, excerpt
 from posegraph.io.g2o_format import FIX_TAG, Record
+from posegraph.io.text_input import Block
 
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 
@@ -25,30 +27,30 @@ class Lines(NamedTuple):
     rests: list[str]
 
 
-def group_lines(text: str) -> tuple[dict[str, Lines], dict[str, int]]:
-    """Split ``text`` into lines once and group them by tag (comments and blank lines dropped)."""
-    # Split on "\n" only: str.splitlines would also break on \x0b, \x1c… and shift line numbers.
-    # A trailing "\r" (CRLF) is whitespace to str.split and to numpy's parser alike.
-    lines = text.split("\n")
-    if "#" in text:
-        lines = [line.partition("#")[0] for line in lines]
+def group_lines(blocks: Iterable[Block]) -> tuple[dict[str, Lines], dict[str, int]]:
+    """Group the lines of ``blocks`` (:func:`posegraph.io.text_input.read_blocks`, comments cut off) by
+    tag, blank lines dropped: ``({tag: Lines}, {tag: first line number})``. Only the lines with data are
+    kept, so the memory is the graph's, not the file's."""
     numbers: dict[str, list[int]] = {}
     rests: dict[str, list[str]] = {}
-    for number, line in enumerate(lines, start=1):
-        # Fast path for "TAG fields…"; str.split handles leading blanks, tabs and a bare tag.
-        tag, _, rest = line.partition(" ")
-        if not tag or not tag.isprintable():
-            parts = line.split(None, 1)
-            if not parts:
-                continue
-            tag = parts[0]
-            rest = parts[1] if len(parts) > 1 else ""
-        try:
-            numbers[tag].append(number)
-            rests[tag].append(rest)
-        except KeyError:
-            numbers[tag] = [number]
-            rests[tag] = [rest]
+    for first, lines in blocks:
+        # Lines end at "\n" only: str.splitlines would also break on \x0b, \x1c… and shift line numbers.
+        # A trailing "\r" (CRLF) is whitespace to str.split and to numpy's parser alike.
+        for number, line in enumerate(lines, start=first):
+            # Fast path for "TAG fields…"; str.split handles leading blanks, tabs and a bare tag.
+            tag, _, rest = line.partition(" ")
+            if not tag or not tag.isprintable():
+                parts = line.split(None, 1)
+                if not parts:
+                    continue
+                tag = parts[0]
+                rest = parts[1] if len(parts) > 1 else ""
+            try:
+                numbers[tag].append(number)
+                rests[tag].append(rest)
+            except KeyError:
+                numbers[tag] = [number]
+                rests[tag] = [rest]
     groups = {tag: Lines(np.array(numbers[tag], dtype=np.int64), rests[tag]) for tag in numbers}
     first_line = {tag: numbers[tag][0] for tag in numbers}
     return groups, first_line
@@ -107,10 +109,10 @@ def _diagnose_line(
     for k, token in enumerate(tokens):
         if k < n_ints:
             if not _is_integer(token):
-                reason = f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not an integer id"
+                reason = f"{tag} field {k + 1} ({fields[k]}) is {excerpt(token)}, not an integer id"
                 return G2oFormatError(reason, path, number)
         elif not _is_number(token):
-            return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {token!r}, not a number", path, number)
+            return G2oFormatError(f"{tag} field {k + 1} ({fields[k]}) is {excerpt(token)}, not a number", path, number)
     return None
 
 
@@ -147,7 +149,7 @@ def parse_fix(lines: Lines, path: str) -> tuple[np.ndarray, np.ndarray, G2oForma
             return np.zeros(0, np.int64), np.zeros(0, np.int64), error
         for k, token in enumerate(tokens):
             if not _is_integer(token):
-                error = G2oFormatError(f"{FIX_TAG} field {k + 1} is {token!r}, not an integer id", path, number)
+                error = G2oFormatError(f"{FIX_TAG} field {k + 1} is {excerpt(token)}, not an integer id", path, number)
                 return np.zeros(0, np.int64), np.zeros(0, np.int64), error
             ids.append(int(token))
             numbers.append(number)

@@ -11,14 +11,14 @@ entry there. The format, checks and repairs are described in ``docs/g2o.md``.
 from __future__ import annotations
 
 import os
-import sys
 import warnings
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning
+from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, excerpt
 from posegraph.graph import EdgeSource, PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
@@ -31,7 +31,7 @@ from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_e
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
 from posegraph.heap import release_free_memory
-from posegraph.io.text_input import read_text
+from posegraph.io.text_input import Block, read_blocks
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3
 
@@ -78,7 +78,7 @@ def read_g2o(
         The ``.g2o`` file: 3D (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, gtsam's older ``VERTEX3`` /
         ``EDGE3``) or 2D (``VERTEX_SE2``, ``EDGE_SE2``), with ``FIX`` lines; see ``docs/g2o.md``
         for the format and the checks. Plain or gzip/bzip2/xz-compressed
-        (:func:`posegraph.io.text_input.read_text`). A file mixing 2D and 3D lines is refused.
+        (:func:`posegraph.io.text_input.read_blocks`, which streams it). A file mixing 2D and 3D lines is refused.
         ``"-"`` reads standard input (messages then name ``<stdin>``).
     require_edges:
         True (default) reads a graph to optimise: edges are required, and a
@@ -116,20 +116,17 @@ def read_g2o(
     several connected components.
     """
     name = os.fspath(path)
-    if name == "-":  # standard input, as g2o's and Unix tools' "-"
-        text = sys.stdin.buffer.read().decode("utf-8-sig", errors="replace")
-        return _parse(text, "<stdin>", None, require_edges, repair_information, (edge2_information, poses_only))
-    text = read_text(name)  # gzip/bzip2/xz undone; a binary file refused in one line
-    graph = _parse(text, name, os.path.abspath(name), require_edges, repair_information, (edge2_information, poses_only))
-    del text
-    release_free_memory()  # the text's and the tokens' pages, which the solver's large arrays would not reuse
+    shown, source = ("<stdin>", None) if name == "-" else (name, os.path.abspath(name))  # "-": as Unix tools
+    blocks = read_blocks(name)  # gzip/bzip2/xz undone; a binary file refused at its first block
+    graph = _parse(blocks, shown, source, require_edges, repair_information, (edge2_information, poses_only))
+    release_free_memory()  # the lines' and the tokens' pages, which the solver's large arrays would not reuse
     return graph
 
 
 def _parse(
-    text: str, path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
+    blocks: Iterable[Block], path: str, source: str | None, require_edges: bool, repair_information: bool, reading: tuple
 ) -> PoseGraph:
-    groups, first_line = group_lines(text)
+    groups, first_line = group_lines(blocks)
     if is_sim3_file(groups):  # VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP: their own module
         return read_sim3(groups, first_line, path, source, require_edges=require_edges, repair_information=repair_information)
     empty = Lines(np.zeros(0, dtype=np.int64), [])
@@ -214,7 +211,7 @@ def _skipped_note(skipped: dict[str, int], first_line: dict[str, int], path: str
     """One warning counting the lines whose tags are not read, per tag."""
     if not skipped:
         return []
-    listing = ", ".join(f"{tag} ×{count}" for tag, count in sorted(skipped.items()))
+    listing = ", ".join(f"{excerpt(tag, quoted=False)} ×{count}" for tag, count in sorted(skipped.items()))
     first = min(first_line[tag] for tag in skipped)
     count = sum(skipped.values())
     return [f"{path}:{first}: skipped {count} line(s) with tags posegraph does not read: {listing}"]
@@ -297,11 +294,11 @@ def _first_unread_line(skipped: dict[str, int], first_line: dict[str, int]) -> s
     if not skipped:
         return ""
     first = next(iter(skipped))
-    text = f"; its first line with data, line {first_line[first]}, begins with {first[:40]!r}"
+    text = f"; its first line with data, line {first_line[first]}, begins with {excerpt(first)}"
     others = [tag for tag in skipped if tag != first and tag[:1].isupper() and tag.replace(":", "_").isidentifier()
               and tag.upper() == tag]
     if others:
-        text += " (other tags: " + ", ".join(others[:3]) + (", …" if len(others) > 3 else "") + ")"
+        text += " (other tags: " + ", ".join(excerpt(tag, quoted=False) for tag in others[:3]) + (", …" if len(others) > 3 else "") + ")"
     return text
 
 

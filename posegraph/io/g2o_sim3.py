@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError, GraphError, InputWarning
+from posegraph.errors import G2oFormatError, GraphError, InputWarning, excerpt
 from posegraph.graph import PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first, topology,
@@ -142,7 +142,7 @@ def _refuse_other_pose_tags(groups: dict[str, Lines], first_line: dict[str, int]
             if token in rigid:
                 tag, line = rigid[token]
                 raise GraphError(
-                    f"{EDGE_SIM3_TAG} names vertex {token}, a {tag} (line {line}): a Sim(3) edge joins "
+                    f"{EDGE_SIM3_TAG} names vertex {excerpt(token, quoted=False)}, a {tag} (line {line}): a Sim(3) edge joins "
                     f"{VERTEX_SIM3_TAG} vertices only", path, number,
                 )  # fmt: skip
     first_sim3 = min(first_line[tag] for tag in SIM3_TAGS & groups.keys())
@@ -269,7 +269,7 @@ def _skipped_note(groups: dict[str, Lines], first_line: dict[str, int], path: st
     skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in SIM3_TAGS | {FIX_TAG}}
     if not skipped:
         return []
-    listing = ", ".join(f"{tag} ×{count}" for tag, count in sorted(skipped.items()))
+    listing = ", ".join(f"{excerpt(tag, quoted=False)} ×{count}" for tag, count in sorted(skipped.items()))
     first = min(first_line[tag] for tag in skipped)
     return [f"{path}:{first}: skipped {sum(skipped.values())} line(s) with tags posegraph does not read: {listing}"]
 

@@ -33,7 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError, GraphError
+from posegraph.errors import G2oFormatError, GraphError, excerpt
 from posegraph.io.g2o_checks import PSD_TOLERANCE
 from posegraph.io.g2o_format import SYMMETRIC_FROM_UPPER_2D
 from posegraph.io.g2o_lines import Lines
@@ -95,7 +95,7 @@ def _equivalences(lines: Lines, path: str) -> tuple[np.ndarray, np.ndarray]:
     for number, rest in zip(lines.numbers.tolist(), lines.rests):
         tokens = rest.split()
         if len(tokens) != 2 or not all(t.lstrip("+-").isdigit() for t in tokens):
-            raise G2oFormatError(f"{EQUIV_TAG} needs two integer vertex ids (a b: b merged into a), found {rest.strip()!r}",
+            raise G2oFormatError(f"{EQUIV_TAG} needs two integer vertex ids (a b: b merged into a), found {excerpt(rest.strip())}",
                                  path, number)
         pairs.append((int(tokens[0]), int(tokens[1])))
     return np.array(pairs, dtype=np.int64).reshape(-1, 2), lines.numbers

@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterable
 
 import numpy as np
 
 from posegraph.atomic import write_text_atomic
-from posegraph.errors import InputError, InputWarning
-from posegraph.io.text_input import read_text
+from posegraph.errors import InputError, InputWarning, excerpt
+from posegraph.io.text_input import Block, read_blocks, text_blocks
 from posegraph.lie import so3
 from posegraph.lie.group import embed_in_se3
 
@@ -110,25 +111,27 @@ def write_kitti(path, poses: np.ndarray) -> None:
 # reading
 
 
-def _iter_data_lines(text: str):
-    """``(1-based line number, tokens)`` of each line that is neither blank nor a ``#`` comment."""
-    for number, line in enumerate(text.splitlines(), start=1):
-        tokens = line.split("#", 1)[0].split()
-        if tokens:
-            yield number, tokens
+def _iter_data_lines(source: str | Iterable[Block]):
+    """``(1-based line number, tokens)`` of each line that is neither blank nor a ``#`` comment, of text in
+    memory or of a file's blocks (:func:`posegraph.io.text_input.read_blocks`, read as they are needed)."""
+    for first, lines in text_blocks(source) if isinstance(source, str) else source:
+        for number, line in enumerate(lines, start=first):
+            tokens = line.split()
+            if tokens:
+                yield number, tokens
 
 
-def _data_lines(text: str) -> tuple[list[list[str]], np.ndarray]:
+def _data_lines(source: str | Iterable[Block]) -> tuple[list[list[str]], np.ndarray]:
     """Token lists of the data lines (:func:`_iter_data_lines`) and their line numbers ``(k,)``."""
-    pairs = list(_iter_data_lines(text))
+    pairs = list(_iter_data_lines(source))
     return [tokens for _, tokens in pairs], np.array([number for number, _ in pairs], dtype=np.int64)
 
 
-def _numeric_rows(text: str, path: str, widths: tuple[int, ...], layout: str) -> tuple[np.ndarray, np.ndarray]:
+def _numeric_rows(source, path: str, widths: tuple[int, ...], layout: str) -> tuple[np.ndarray, np.ndarray]:
     """``(values (k, w), line numbers (k,))`` of a file of ``w`` finite numbers per line, ``w`` in ``widths``
     (the first line decides); the first bad line raised as ``path:line: reason``. ``layout`` names the
     fields in messages."""
-    rows, numbers = _data_lines(text)
+    rows, numbers = _data_lines(source)
     if not rows:
         raise InputError(f"the file has no data lines (expected {layout})", path)
     width = len(rows[0])
@@ -144,7 +147,7 @@ def _numeric_rows(text: str, path: str, widths: tuple[int, ...], layout: str) ->
     bad = _first_non_finite(rows, values)
     if bad is not None:
         k, token = bad
-        raise InputError(f"field {token!r} is not a finite number ({layout})", path, int(numbers[k]))
+        raise InputError(f"field {excerpt(token)} is not a finite number ({layout})", path, int(numbers[k]))
     return values, numbers
 
 
@@ -165,7 +168,7 @@ def _first_non_finite(rows: list[list[str]], values: np.ndarray | None) -> tuple
     raise AssertionError("numpy refused a row that float() accepts")  # pragma: no cover
 
 
-def parse_tum(text: str, path: str) -> tuple[np.ndarray, np.ndarray]:
+def parse_tum(text: str | Iterable[Block], path: str) -> tuple[np.ndarray, np.ndarray]:
     """Timestamps ``(n,)`` (increasing) and poses ``(n, 4, 4)`` of TUM text (module docstring).
 
     Raises :class:`InputError` for a malformed line, a zero quaternion or a repeated timestamp.
@@ -193,7 +196,7 @@ def parse_tum(text: str, path: str) -> tuple[np.ndarray, np.ndarray]:
     return stamps, poses
 
 
-def parse_kitti(text: str, path: str) -> tuple[np.ndarray, np.ndarray]:
+def parse_kitti(text: str | Iterable[Block], path: str) -> tuple[np.ndarray, np.ndarray]:
     """Frame indices ``0..n−1`` ``(n,)`` and poses ``(n, 4, 4)`` of KITTI text (module docstring)."""
     layout = "the 12 entries of a 3x4 pose matrix [R | t], row by row"
     values, numbers = _numeric_rows(text, path, (_KITTI_FIELDS,), layout)
@@ -214,16 +217,16 @@ def parse_kitti(text: str, path: str) -> tuple[np.ndarray, np.ndarray]:
 def read_tum(path) -> tuple[np.ndarray, np.ndarray]:
     """:func:`parse_tum` of the file at ``path`` (plain or compressed)."""
     name = os.fspath(path)
-    return parse_tum(read_text(name, "TUM"), name)
+    return parse_tum(read_blocks(name, "TUM"), name)
 
 
 def read_kitti(path) -> tuple[np.ndarray, np.ndarray]:
     """:func:`parse_kitti` of the file at ``path`` (plain or compressed)."""
     name = os.fspath(path)
-    return parse_kitti(read_text(name, "KITTI"), name)
+    return parse_kitti(read_blocks(name, "KITTI"), name)
 
 
-def sniff_format(text: str, path: str) -> str:
+def sniff_format(text: str | Iterable[Block], path: str) -> str:
     """``"g2o"``, ``"tum"`` or ``"kitti"``, from the first data line of ``text``.
 
     A line starting with a word is g2o (a tag); a line of 8 numbers is TUM, of 12 numbers KITTI.
@@ -247,7 +250,7 @@ def sniff_format(text: str, path: str) -> str:
 def file_format(path) -> str:
     """:func:`sniff_format` of the file at ``path`` (plain or compressed)."""
     name = os.fspath(path)
-    return sniff_format(read_text(name, "trajectory"), name)
+    return sniff_format(read_blocks(name, "trajectory"), name)
 
 
 def read_timestamp_table(path, ids: np.ndarray) -> np.ndarray:
@@ -258,7 +261,7 @@ def read_timestamp_table(path, ids: np.ndarray) -> np.ndarray:
     of the graph present once, other ids ignored). Timestamps must be distinct.
     """
     name = os.fspath(path)
-    values, numbers = _numeric_rows(read_text(name, "timestamp table"), name, (1, 2),
+    values, numbers = _numeric_rows(read_blocks(name, "timestamp table"), name, (1, 2),
                                     "one timestamp per vertex in id order, or: id timestamp")
     ids = np.asarray(ids, dtype=np.int64)
     if values.shape[1] == 1:

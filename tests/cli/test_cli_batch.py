@@ -195,6 +195,7 @@ def test_optimize_options_reach_each_file(inputs, tmp_path):
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not allowed with"),
     (["--drop-outliers"], "--drop-outliers needs a robust loss"),
     (["--workers", "0"], "must be >= 1"),
+    (["--fix", "1000000000000000000000"], "argument --fix: too large"),  # not an OverflowError in each log
 ])
 def test_usage_errors_are_one_line_and_run_nothing(inputs, tmp_path, arguments, fragment):
     run = run_cli("batch", inputs[0], "-o", tmp_path / "out", *arguments)

@@ -162,6 +162,9 @@ def test_usage_errors_are_one_line(tmp_path):
     assert_one_error_line(run_cli("optimize", tmp_path / "x.g2o"), "-o")
     assert_one_error_line(run_cli("optimize", "x.g2o", "-o", "y.g2o", "--method", "newton"), "newton")
     assert_one_error_line(run_cli("optimize", "x.g2o", "-o", "y.g2o", "--max-iterations", "-3"), "-3")
+    for beyond_int64 in ("1000000000000000000000", str(2**63)):  # an OverflowError (exit 3) deep inside before
+        assert_one_error_line(run_cli("optimize", "x.g2o", "-o", "y.g2o", "--fix", "0", beyond_int64),
+                              f"argument --fix: too large: {beyond_int64} (at most 2^63 - 1")
     assert_one_error_line(run_cli("frobnicate"), "frobnicate")
     assert_one_error_line(run_cli("optimize", "x.g2o", "-o", tmp_path / "a.g2o", "--report", tmp_path / "a.g2o"),
                           "same file")

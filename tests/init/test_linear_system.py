@@ -91,3 +91,35 @@ def test_every_ordering_gives_the_same_solution_and_a_bad_name_is_refused():
         problem = RelativeLeastSquares(held, edge_from, edge_to, ordering="nesdis")
         problem.solve(values, transfer, weight, offset)
         assert problem._cholesky.ordering == "nesdis"
+
+
+def test_a_cholmod_failure_is_raised_when_cholmod_was_asked_for_and_falls_back_only_under_auto(monkeypatch):
+    """CHOLMOD's factorisation forced to fail (as at round-off level when weights span many decades):
+    ``"cholmod"`` named explicitly raises it; ``"auto"`` turns to SuperLU and gives its solution."""
+    from posegraph import cholmod
+    from posegraph.init.linear_system import NotPositiveDefiniteError
+
+    if cholmod.load() is None:
+        pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")
+    rng = np.random.default_rng(5)
+    edge_from, edge_to, transfer, weight, offset, values = _random_problem(rng)
+    held = np.zeros(values.shape[0], bool)
+    held[0] = True
+    calls = []
+
+    def failing(data):
+        calls.append(len(data))
+        raise NotPositiveDefiniteError("CHOLMOD: matrix not positive definite (forced by the test)")
+
+    solutions = {}
+    for linear_solver in ("cholmod", "auto"):
+        problem = RelativeLeastSquares(held, edge_from, edge_to, linear_solver=linear_solver)
+        monkeypatch.setattr(problem._analysed(), "factorize", failing)
+        if linear_solver == "cholmod":
+            with pytest.raises(NotPositiveDefiniteError, match="forced by the test"):
+                problem.solve(values, transfer, weight, offset)
+        else:
+            solutions[linear_solver] = problem.solve(values, transfer, weight, offset)
+    assert len(calls) == 2  # CHOLMOD was tried both times
+    superlu = RelativeLeastSquares(held, edge_from, edge_to, linear_solver="scipy").solve(values, transfer, weight, offset)
+    np.testing.assert_array_equal(solutions["auto"], superlu)

@@ -252,3 +252,24 @@ def test_missing_input_file(tmp_path):
     assert info.value.path == str(path)
     assert "cannot read the file" in str(info.value)
     assert os.listdir(tmp_path) == []
+
+
+def test_what_a_message_quotes_from_the_file_is_cut_to_about_sixty_characters(tmp_path):
+    """A 500 kB unknown tag, field, FIX id or EQUIV line: the message quotes ~60 characters and an
+    ellipsis, not the whole (a 100 MB field once made a 105 MB error line)."""
+    from tests.io.helpers import read_with_warnings
+
+    long_tag, long_field = "T" * 500_000, "7" * 500_000 + "x"
+    path = tmp_path / "tag.g2o"
+    path.write_text("\n".join([vertex(0), vertex(1), edge(0, 1), f"{long_tag} 1 2"]) + "\n")
+    _, messages = read_with_warnings(path)
+    assert len(messages) == 1 and f"{'T' * 59}… ×1" in messages[0] and len(messages[0]) < 200
+    cases = {
+        "VERTEX_SE3:QUAT field 2 (x) is '" + "7" * 59 + "…', not a number": vertex(2, long_field + " 0 0 0 0 0 1"),
+        "FIX field 1 is '" + "7" * 59 + "…', not an integer id": "FIX " + long_field,
+    }
+    for expected, line in cases.items():
+        path.write_text("\n".join([vertex(0), vertex(1), edge(0, 1), line]) + "\n")
+        with pytest.raises(G2oFormatError) as info:
+            read_g2o(path)
+        assert str(info.value) == f"{path}:4: {expected}"

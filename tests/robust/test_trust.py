@@ -129,3 +129,27 @@ def test_strict_known_inliers_are_kept_and_named(clean):
     assert robust.released.size == 0
     assert set(wrong) <= set(robust.suspicious)
     assert robust.known[wrong].all() and (robust.weights[wrong] == 1).all()
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_trusted_edge_only_mildly_wrong_is_named_suspicious(clean, strict):
+    """An odometry edge 0.3 off along x: at the result its s lies between c̄² and 2 c̄², too little for a
+    run without trusting it to fit better (it is neither released nor rejected), yet above the inlier
+    test: the final check must name it (at 2 c̄² it would pass unseen)."""
+    from posegraph.robust.gnc import GncParams, inlier_thresholds
+    from posegraph.robust.starts import measurement_dimensions, measurement_residuals
+
+    odometry = np.flatnonzero(clean.odometry_mask())
+    k = odometry[len(odometry) // 2]
+    shifted = np.eye(4)
+    shifted[0, 3] = 0.3
+    measurements = clean.measurements.copy()
+    measurements[k] = measurements[k] @ shifted
+    graph = replace(clean, measurements=measurements, edge_source=None)
+    robust = optimize_robust(graph, strict_known_inliers=strict)
+    threshold = np.broadcast_to(inlier_thresholds(measurement_dimensions(graph), graph.num_edges, GncParams()),
+                                (graph.num_edges,))[k]
+    ratio = measurement_residuals(graph, robust.poses)[k] / threshold
+    assert 1.0 < ratio < 2.0  # the case this test is about
+    assert robust.suspicious.tolist() == [k]
+    assert robust.released.size == 0 and robust.outlier_edges.size == 0 and robust.known[k]
