@@ -79,6 +79,9 @@ def _refused(path: str, reason: str):
     return OutputError(f"cannot write the file: {reason}", path=path)
 
 
+_STAGED_NOW: set = set()
+"""The temporary files staged and not yet delivered or discarded, as absolute paths (:func:`atomic_path`)."""
+
 _COMMITTED: list = []
 """The destinations delivered in this process since :func:`forget_committed_outputs`, in order."""
 
@@ -102,7 +105,13 @@ def atomic_path(path, suffix: str | None = None):
     ``suffix`` (default: ``path``'s own suffix) is kept on the temporary name, for writers that
     pick their format from the file name (Open3D, matplotlib). The folder of ``path`` must exist.
     One :class:`StagedOutputs` of one file: the same rules for links, devices, modes and errors.
+    A ``path`` that is itself a staged temporary file (a library writer such as ``write_g2o``
+    called on the name :meth:`StagedOutputs.writing` gave) is yielded as it is: nobody sees it
+    before its own commit, which is the one that delivers it.
     """
+    if os.path.abspath(path) in _STAGED_NOW:
+        yield os.fspath(path)
+        return
     with StagedOutputs() as outputs:
         with outputs.writing(path, suffix) as tmp:
             yield tmp
@@ -181,6 +190,7 @@ class StagedOutputs:
         except OSError as exc:  # named by the user's path, not the temporary one
             raise _output_error(given, exc) from exc
         self._staged.append(_Staged(tmp, given, target, new_mode))
+        _STAGED_NOW.add(os.path.abspath(tmp))
         return tmp
 
     @contextlib.contextmanager
@@ -218,13 +228,18 @@ class StagedOutputs:
             for staged in files:
                 _rename_onto(staged)
                 _COMMITTED.append(staged.given)
-            self._staged = []
+            self._forget()
 
     def discard(self) -> None:
         """Delete the temporary files not yet delivered."""
         for staged in self._staged:
             with contextlib.suppress(OSError):
                 os.unlink(staged.tmp)
+        self._forget()
+
+    def _forget(self) -> None:
+        for staged in self._staged:
+            _STAGED_NOW.discard(os.path.abspath(staged.tmp))
         self._staged = []
 
 

@@ -81,10 +81,16 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: 
         require_matplotlib()
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise BatchError(f"the output folder {out_dir} is a file")
+    summaries = (report, csv_path_for(report))
+    # A summary whose folder exists is checked before OUT_DIR is made: a refused one leaves nothing behind.
+    early = [s for s in summaries if os.path.isdir(os.path.dirname(os.path.abspath(s)))]
+    for summary in early:
+        check_output(summary, what="summary")
     os.makedirs(out_dir, exist_ok=True)
     taken = {os.path.realpath(p) for job in jobs for p in (job.input, *job.outputs)}
-    for summary in (report, csv_path_for(report)):
-        check_output(summary, what="summary")
+    for summary in summaries:
+        if summary not in early:
+            check_output(summary, what="summary")
         if os.path.realpath(summary) in taken:
             raise BatchError(f"the summary {summary} would be an input or a file's output: choose another --report")
     return jobs
