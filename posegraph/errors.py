@@ -8,7 +8,9 @@ problem is not tied to one line) and the reason, and prints as
 
 from __future__ import annotations
 
-__all__ = ["InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning", "Interrupted"]
+__all__ = [
+    "InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning", "Interrupted",
+]
 
 
 class InputError(ValueError):

@@ -352,7 +352,8 @@ def test_a_stop_signal_while_writing_leaves_the_old_outputs_and_no_temporary_fil
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 128 + number, stderr
-    assert stderr.strip().splitlines()[-1] == f"posegraph: interrupted by {signal.Signals(number).name}; nothing written"
+    name = signal.Signals(number).name
+    assert stderr.strip().splitlines()[-1] == f"posegraph: interrupted by {name}; nothing written"
     assert "Traceback" not in stderr
     assert sorted(os.listdir(out)) == ["out.g2o", "r.json"]  # no temporary file survives
     assert (out / "out.g2o").read_text() == "old" and (out / "r.json").read_text() == "old"  # neither new
@@ -371,7 +372,8 @@ def test_an_ignored_sighup_stays_ignored(tmp_path, graph):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, stderr
-    assert (out / "out.g2o").read_text().startswith("VERTEX_SE3:QUAT ") and '"final_cost"' in (out / "r.json").read_text()
+    assert (out / "out.g2o").read_text().startswith("VERTEX_SE3:QUAT ")
+    assert '"final_cost"' in (out / "r.json").read_text()
 
 
 @pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
