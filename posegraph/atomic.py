@@ -167,7 +167,9 @@ class StagedOutputs:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.discard()
+        if self._staged:  # a second signal must not stop the clean-up of the first halfway
+            with _signals_held():
+                self.discard()
 
     def stage(self, path, suffix: str | None = None) -> str:
         """A temporary path to write in place of ``path``; an :class:`~posegraph.errors.OutputError`

@@ -101,12 +101,18 @@ def test_certify_writes_into_devices_and_fifos(tmp_path, graph, kind):
     assert sorted(os.listdir(tmp_path)) == ["cert.json", "out.g2o"]
 
 
-def test_dev_stdout_as_output_is_the_same_result_as_a_file(tmp_path, graph):
-    """``-o /dev/stdout`` (here the child's own stdout, a pipe): the bytes a file gets, on stdout."""
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs Linux's /proc/self/fd")
+def test_a_link_to_the_processs_stdout_gets_the_result_as_dev_stdout_would(tmp_path, graph):
+    """``-o /dev/stdout`` without naming the system's /dev/stdout (which the bug replaced): a link
+    made here to /proc/self/fd/1, as /dev/stdout is, leads to the child's stdout, a pipe; it gets
+    the bytes a file gets, and the link stays a link."""
+    os.symlink("/proc/self/fd/1", tmp_path / "stdout")
     as_file = run_cli("optimize", graph, "-o", tmp_path / "out.g2o", "-q")
-    as_stdout = run_cli("optimize", graph, "-o", "/dev/stdout", "-q")
+    as_stdout = run_cli("optimize", graph, "-o", tmp_path / "stdout", "-q")
     assert as_file.returncode == 0 and as_stdout.returncode == 0, as_stdout.stderr
     assert as_stdout.stdout == (tmp_path / "out.g2o").read_text()
+    assert os.readlink(tmp_path / "stdout") == "/proc/self/fd/1"
+    assert sorted(os.listdir(tmp_path)) == ["out.g2o", "stdout"]
 
 
 def test_a_full_device_is_one_line_naming_it_and_nothing_else_is_written(tmp_path, graph):
