@@ -94,7 +94,8 @@ def test_certify_writes_into_devices_and_fifos(tmp_path, graph, kind):
     nodes = make_nodes(tmp_path, kind, ["out.g2o", "cert.json"])
     run = run_cli("certify", graph, "-o", tmp_path / "out.g2o", "--report", tmp_path / "cert.json", "-q")
     assert run.returncode in (0, 1), run.stderr
-    assert_node(tmp_path / "out.g2o", kind) and assert_node(tmp_path / "cert.json", kind)
+    assert_node(tmp_path / "out.g2o", kind)
+    assert_node(tmp_path / "cert.json", kind)
     if kind == "fifo":
         assert nodes["out.g2o"].received().startswith(b"VERTEX_SE3:QUAT ")
         assert b'"certified"' in nodes["cert.json"].received()
@@ -155,7 +156,7 @@ def test_certify_writes_through_a_link(tmp_path, graph):
     assert (tmp_path / "real.g2o").read_text().startswith("VERTEX_SE3:QUAT ")
 
 
-def test_batch_summary_through_links_and_into_a_device(tmp_path, graph):
+def test_batch_summary_through_links(tmp_path, graph):
     pytest.importorskip("distributed")
     (tmp_path / "s.json").write_text("old")
     (tmp_path / "s.csv").write_text("old")
@@ -167,6 +168,19 @@ def test_batch_summary_through_links_and_into_a_device(tmp_path, graph):
     assert '"counts"' in (tmp_path / "s.json").read_text()
     assert (tmp_path / "s.csv").read_text().startswith("file,vertices,")
     assert sorted(os.listdir(tmp_path)) == ["link.csv", "link.json", "out", "s.csv", "s.json"]
+
+
+def test_batch_summary_into_a_device_and_a_fifo(tmp_path, graph):
+    """``--report S.json`` a device, its ``S.csv`` a FIFO: both written into, both left as they were."""
+    pytest.importorskip("distributed")
+    device_twin(tmp_path / "s.json")
+    csv = FifoReader(tmp_path / "s.csv")
+    run = run_cli("batch", graph, "-o", tmp_path / "out", "--report", tmp_path / "s.json", "--workers", 1, "-q")
+    assert run.returncode == 0, run.stderr
+    assert csv.received().startswith(b"file,vertices,")
+    assert_node(tmp_path / "s.json", "device")
+    assert_node(tmp_path / "s.csv", "fifo")
+    assert sorted(os.listdir(tmp_path)) == ["out", "s.csv", "s.json"]
 
 
 # --------------------------------------------------------------------------------------------
