@@ -124,12 +124,12 @@ class _interrupt_deferred:
         import signal
         import threading
 
-        from posegraph.cli.startup import STOP_SIGNALS, _raise_interrupted
+        from posegraph.cli.startup import STOP_SIGNALS, raise_interrupted
 
         if threading.current_thread() is not threading.main_thread():
             return self
         raising = {signal.SIGINT: signal.default_int_handler}
-        raising.update({getattr(signal, name): _raise_interrupted for name in STOP_SIGNALS if hasattr(signal, name)})
+        raising.update({getattr(signal, name): raise_interrupted for name in STOP_SIGNALS if hasattr(signal, name)})
         for number, handler in raising.items():
             if signal.getsignal(number) is handler:
                 self._previous[number] = signal.signal(number, self._note)

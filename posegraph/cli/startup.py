@@ -198,7 +198,7 @@ class stop_signals_interrupt:
         for name in STOP_SIGNALS:
             number = getattr(signal, name, None)
             if number is not None and signal.getsignal(number) == signal.SIG_DFL:
-                self._previous[number] = signal.signal(number, _raise_interrupted)
+                self._previous[number] = signal.signal(number, raise_interrupted)
         return self
 
     def __exit__(self, *exc) -> bool:
@@ -210,7 +210,8 @@ class stop_signals_interrupt:
         return False
 
 
-def _raise_interrupted(signum: int, frame) -> None:
+def raise_interrupted(signum: int, frame) -> None:
+    """The handler :class:`stop_signals_interrupt` sets: raise :class:`~posegraph.errors.Interrupted`."""
     from posegraph.errors import Interrupted
 
     raise Interrupted(signum)
