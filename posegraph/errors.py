@@ -8,7 +8,8 @@ problem is not tied to one line) and the reason, and prints as
 
 from __future__ import annotations
 
-__all__ = ["excerpt", "QUOTED_CHARS", "InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning"]
+__all__ = ["excerpt", "QUOTED_CHARS", "InputError", "G2oFormatError", "GraphError", "OutputError", "PosegraphWarning", "InputWarning",
+           "Interrupted"]
 
 
 QUOTED_CHARS = 60
@@ -50,6 +51,16 @@ class GraphError(InputError):
 
 class OutputError(InputError):
     """An output cannot be written as asked (it would overwrite the input, or its folder does not exist)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal that asks the process to stop (SIGTERM, SIGHUP), raised as Ctrl-C raises
+    ``KeyboardInterrupt`` — by the command line's handlers — so that every ``except
+    KeyboardInterrupt`` and ``finally`` cleans up after it the same way. ``signum``: the signal."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(signum)
 
 
 class PosegraphWarning(UserWarning):

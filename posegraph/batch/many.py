@@ -137,31 +137,50 @@ class _interrupt_deferred:
     """Ctrl-C while a cluster runs sets ``self.is_set`` instead of raising anywhere inside Dask (whose
     event loop logs tracebacks, or drops the KeyboardInterrupt, when it lands in its callbacks);
     :func:`_run_jobs` looks at it between waits and raises KeyboardInterrupt there, and leaving the
-    block raises it if it came later (while the cluster closed). Outside the main thread, where no
-    signal handler can be set, Ctrl-C raises where it lands, as by default."""
+    block raises it if it came later (while the cluster closed). SIGTERM and SIGHUP, where the
+    command line raises them as interrupts (:class:`posegraph.cli.startup.stop_signals_interrupt`),
+    are deferred the same way and raised as :class:`~posegraph.errors.Interrupted`. Outside the
+    main thread, where no signal handler can be set, Ctrl-C raises where it lands, as by default."""
 
     def __init__(self):
         self.is_set = False
-        self._previous = None
+        self.signum = None
+        self._previous = {}
 
     def __enter__(self):
         import signal
         import threading
 
-        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-            self._previous = signal.signal(signal.SIGINT, self._note)
+        from posegraph.cli.startup import STOP_SIGNALS, raise_interrupted
+
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        raising = {signal.SIGINT: signal.default_int_handler}
+        raising.update({getattr(signal, name): raise_interrupted for name in STOP_SIGNALS if hasattr(signal, name)})
+        for number, handler in raising.items():
+            if signal.getsignal(number) is handler:
+                self._previous[number] = signal.signal(number, self._note)
         return self
 
     def _note(self, signum, frame) -> None:
         self.is_set = True
+        self.signum = signum
+
+    def interrupt(self):
+        """The exception the signal received stands for: KeyboardInterrupt, or Interrupted(signum)."""
+        import signal
+
+        from posegraph.errors import Interrupted
+
+        return KeyboardInterrupt() if self.signum in (None, signal.SIGINT) else Interrupted(self.signum)
 
     def __exit__(self, kind, value, traceback):
         import signal
 
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
         if self.is_set and kind is None:
-            raise KeyboardInterrupt
+            raise self.interrupt()
         return False
 
 
@@ -184,7 +203,7 @@ def _run_jobs(client, jobs: list, todo: list, rows: list, progress, interrupted=
     try:
         while futures:
             if interrupted is not None and interrupted.is_set:
-                raise KeyboardInterrupt
+                raise interrupted.interrupt()
             if not finished.has_ready():
                 time.sleep(POLL_SECONDS)
                 continue

@@ -107,6 +107,5 @@ def write_summary(rows: list, path: str, command: list | None = None) -> None:
     writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
     with StagedOutputs() as outputs:
         for target, text in ((path, json_text(summary)), (csv_path_for(path), table.getvalue())):
-            with open(outputs.stage(target), "w", encoding="utf-8", newline="") as f:
-                f.write(text)
+            outputs.write_text(target, text)
         outputs.commit()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from posegraph.cli.common import (
-    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, PROG, UsageError, positive_int, warn,
+    EXIT_NOT_CONVERGED, EXIT_OK, PROG, UsageError, interrupted_status, positive_int, warn,
 )
 
 NAME = "batch"
@@ -63,11 +63,11 @@ def run(args) -> int:
         )
     except BatchError as exc:
         raise UsageError(str(exc)) from None
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP
         progress.finish()
         print(f"\n{PROG}: interrupted; the files finished are in {args.out_dir} (a re-run skips them)",
               file=sys.stderr, flush=True)
-        return EXIT_INTERRUPTED
+        return interrupted_status(exc)
     progress.finish()
     _print_table(rows, args)
     bad = [row["file"] for row in rows if row["status"] in ("failed", "not converged")]

@@ -93,7 +93,8 @@ def _write_outputs(args, graph, certificate, seconds_read: float) -> None:
         if args.output == STDIO:
             printed.append(format_g2o(graph, certificate.poses))
         elif args.output:
-            write_g2o(outputs.stage(args.output), graph, certificate.poses)
+            with outputs.writing(args.output) as tmp:
+                write_g2o(tmp, graph, certificate.poses)
         if args.report:
             report = certificate_report(certificate, display_name(args.input), graph)
             report["seconds"] = {"read": seconds_read, **report["seconds"]}
@@ -101,8 +102,7 @@ def _write_outputs(args, graph, certificate, seconds_read: float) -> None:
             if args.report == STDIO:
                 printed.append(text)
             else:
-                with open(outputs.stage(args.report), "w", encoding="utf-8") as f:
-                    f.write(text)
+                outputs.write_text(args.report, text)
         outputs.commit()
     for text in printed:
         sys.stdout.write(text)

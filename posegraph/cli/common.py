@@ -19,6 +19,31 @@ EXIT_USAGE = 2
 EXIT_BUG = 3
 EXIT_INTERRUPTED = 130
 
+
+def interrupted_status(exc: BaseException) -> int:
+    """The exit status of a run stopped by ``exc``: 128 + the signal, as a shell shows a process a
+    signal ended (130 for Ctrl-C's ``KeyboardInterrupt``; SIGTERM's :class:`~posegraph.errors.Interrupted` 143)."""
+    import signal
+
+    return 128 + getattr(exc, "signum", signal.SIGINT)
+
+
+def interrupted_message(exc: BaseException) -> str:
+    """``interrupted`` (``by SIGTERM``…), then exactly what this run has delivered
+    (:func:`posegraph.atomic.committed_outputs`): "nothing written", or the outputs complete on
+    disk when the signal came after their renames (which it never splits)."""
+    import signal
+
+    from posegraph.atomic import committed_outputs
+
+    number = getattr(exc, "signum", signal.SIGINT)
+    said = "interrupted" if number == signal.SIGINT else f"interrupted by {signal.Signals(number).name}"
+    written = committed_outputs()
+    if not written:
+        return f"{said}; nothing written"
+    return f"{said}; written, complete: {', '.join(written)}; nothing else written"
+
+
 STDIO = "-"
 """A file argument naming standard input (where a graph is read) or standard output (where one is written)."""
 
@@ -160,18 +185,30 @@ def check_output(
     path: str, *, inputs=(), allow_input: bool = False, what: str = "output", stdout: bool = False
 ) -> None:
     """Fail before any work if ``path`` cannot be written as asked; ``-`` is standard output where
-    the command can write this output there (``stdout``), else a usage error."""
+    the command can write this output there (``stdout``), else a usage error.
+
+    The path is judged as :func:`posegraph.atomic.output_target` will deliver it: a folder, a
+    dangling link, a block device or a socket is refused; a device or FIFO must be writable; a
+    file (or a link's target) must be creatable in its folder and not be an input.
+    """
+    from posegraph.atomic import output_target
     from posegraph.errors import OutputError
 
     if path == STDIO:
         if stdout:
             return
         raise UsageError(f"the {what} cannot go to standard output (-): give a file name")
-    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        target = output_target(path)
+    except OutputError as exc:
+        raise OutputError(exc.reason.replace("the file", f"the {what}", 1), path=path) from None
+    if target.kind == "node":  # written into, never replaced: it cannot clobber an input
+        if not os.access(target.path, os.W_OK):
+            raise OutputError(f"cannot write the {what}: permission denied", path=path)
+        return
+    folder = os.path.dirname(os.path.abspath(target.path))
     if not os.path.isdir(folder):
         raise OutputError(f"cannot write the {what}: folder {folder} does not exist", path=path)
-    if os.path.isdir(path):
-        raise OutputError(f"cannot write the {what}: it is a folder", path=path)
     reason = _cannot_create_in(folder)
     if reason:
         raise OutputError(f"cannot write the {what}: no file can be created in folder {folder} ({reason})", path=path)
@@ -224,12 +261,25 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def check_distinct(paths) -> None:
-    """A :class:`UsageError` if two of the given (non-empty) output paths are the same file."""
-    paths = [p for p in paths if p]
+    """A :class:`UsageError` if two of the given (non-empty) output paths are the same file.
+    Devices and FIFOs may be named twice (``-o /dev/null --report /dev/null``): each output is
+    written into them whole, one after the other, and none replaces another."""
+    paths = [p for p in paths if p and not _is_node(p)]
     for k, a in enumerate(paths):
         for b in paths[k + 1 :]:
             if _same_file(a, b):
                 raise UsageError(f"two outputs are the same file: {a} and {b}")
+
+
+def _is_node(path: str) -> bool:
+    """Whether ``path`` leads to a character device or a FIFO."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
 
 
 def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False,

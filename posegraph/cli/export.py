@@ -83,10 +83,11 @@ def run(args) -> int:
              "is the k-th vertex in id order")
     with StagedOutputs() as outputs:
         if args.tum:
-            trajectory.write_tum(outputs.stage(args.tum), graph.ids[order] if stamps is None else stamps,
-                                 graph.poses[order])
+            with outputs.writing(args.tum) as tmp:
+                trajectory.write_tum(tmp, graph.ids[order] if stamps is None else stamps, graph.poses[order])
         if args.kitti:
-            trajectory.write_kitti(outputs.stage(args.kitti), graph.poses[order])
+            with outputs.writing(args.kitti) as tmp:
+                trajectory.write_kitti(tmp, graph.poses[order])
         _write_open3d(args, graph, outputs)
         outputs.commit()
     return EXIT_OK
@@ -98,7 +99,8 @@ def _write_open3d(args, graph, outputs) -> None:
     from posegraph.export_open3d import write_open3d_pose_graph, write_trajectory_ply
 
     if args.open3d:
-        write_open3d_pose_graph(outputs.stage(args.open3d, suffix=".json"), graph,
-                                uncertain_loop_closures=args.uncertain_loop_closures)
+        with outputs.writing(args.open3d, suffix=".json") as tmp:
+            write_open3d_pose_graph(tmp, graph, uncertain_loop_closures=args.uncertain_loop_closures)
     if args.ply:
-        write_trajectory_ply(outputs.stage(args.ply, suffix=".ply"), graph, loop_closures=args.loop_closures)
+        with outputs.writing(args.ply, suffix=".ply") as tmp:
+            write_trajectory_ply(tmp, graph, loop_closures=args.loop_closures)

@@ -8,9 +8,9 @@ import sys
 
 from posegraph.cli.common import (
     reader_options,
-    EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
+    EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
     check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
-    warn,
+    interrupted_status, warn,
 )
 from posegraph.cli.robust import (
     check_robust_options, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
@@ -226,7 +226,8 @@ def _write_outputs(
             if args.output == STDIO:
                 printed.append(format_g2o(written, result.poses))
             else:
-                write_g2o(outputs.stage(args.output), written, result.poses)
+                with outputs.writing(args.output) as tmp:
+                    write_g2o(tmp, written, result.poses)
         seconds["write"] = t_write.seconds
         if args.report:
             from posegraph.report import optimize_report
@@ -241,12 +242,11 @@ def _write_outputs(
             if args.report == STDIO:
                 printed.append(report)
             else:
-                with open(outputs.stage(args.report), "w", encoding="utf-8") as f:
-                    f.write(report)
+                outputs.write_text(args.report, report)
         if covariances is not None:
             import numpy as np
 
-            with open(outputs.stage(args.covariances), "wb") as f:  # a file object: savez adds no ".npz"
+            with outputs.writing(args.covariances) as tmp, open(tmp, "wb") as f:  # a file object: savez adds no ".npz"
                 np.savez(f, ids=graph.ids, covariances=covariances)
         outputs.commit()
     for text in printed:
@@ -264,9 +264,9 @@ def _draw(args, status: Status, graph, result) -> bool:
                 args.plot, [graph, graph], [f"input ({os.path.basename(display_name(args.input))})", "optimised"],
                 [graph.poses, result.poses], title=os.path.basename(display_name(args.input)),
             )
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP
         warn(f"interrupted while drawing {args.plot}: no figure; the result is in {display_name_out(args.output)}")
-        raise SystemExit(EXIT_INTERRUPTED) from None
+        raise SystemExit(interrupted_status(exc)) from None
     except Exception as exc:  # the result is written: losing the figure must not look like losing it
         warn(f"the figure {args.plot} was not drawn ({type(exc).__name__}: {' '.join(str(exc).split())}); "
              f"the result is in {display_name_out(args.output)}")

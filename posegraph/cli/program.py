@@ -6,8 +6,8 @@ import sys
 import warnings
 
 from posegraph.cli.common import (
-    EXIT_BUG, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_USAGE, OPTIONAL_MODULES, PROG, UsageError, WarningPrinter,
-    error,
+    EXIT_BUG, EXIT_NOT_CONVERGED, EXIT_USAGE, OPTIONAL_MODULES, PROG, UsageError, WarningPrinter, error,
+    interrupted_message, interrupted_status,
 )
 from posegraph.cli.parser import COMMANDS, build_parser
 
@@ -23,9 +23,14 @@ def main(argv=None) -> int:
     as status 2, a bug (any other exception) as status 3 with a hint to rerun with ``--debug``,
     which re-raises it with its traceback.
     """
+    from posegraph.atomic import forget_committed_outputs
+    from posegraph.cli.startup import stop_signals_interrupt
+
     argv = sys.argv[1:] if argv is None else list(argv)
+    forget_committed_outputs()  # what this run delivers, for the message if it is interrupted
     try:
-        return _run(argv)
+        with stop_signals_interrupt():
+            return _run(argv)
     except Exception as exc:  # a bug of ours, not a user's mistake
         if DEBUG_OPTION in argv:
             raise
@@ -60,9 +65,9 @@ def _run(argv: list) -> int:
                 return args.func(args)
             finally:
                 printer.finish()
-    except KeyboardInterrupt:
-        print(f"\n{PROG}: interrupted; nothing written", file=sys.stderr, flush=True)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (posegraph.errors.Interrupted)
+        print(f"\n{PROG}: {interrupted_message(exc)}", file=sys.stderr, flush=True)
+        return interrupted_status(exc)
     except UsageError as exc:
         error(str(exc))
         return EXIT_USAGE

@@ -167,3 +167,51 @@ def _import_solver_modules() -> None:
     import posegraph.init  # noqa: F401
     import posegraph.io.g2o  # noqa: F401
     import posegraph.solve  # noqa: F401
+
+
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+"""Signals that ask the process to stop, handled as Ctrl-C is (:func:`stop_signals_interrupt`)."""
+
+
+class stop_signals_interrupt:
+    """While in the block, SIGTERM and SIGHUP raise :class:`~posegraph.errors.Interrupted` as
+    Ctrl-C raises ``KeyboardInterrupt``.
+
+    Their default action ends the process at once, leaving the temporary files of the outputs
+    being written (even complete ones) and, between two renames, a new result beside an old
+    report; raised as an exception, they unwind as Ctrl-C does: temporary files deleted, renames
+    held back until the last one (:class:`posegraph.atomic.StagedOutputs`), exit status 128 +
+    the signal. Only signals at their default action are taken: one ignored (``nohup`` ignores
+    SIGHUP) stays ignored, a handler an embedding program set stays its own. Only in the main
+    thread, where Python handles signals; the previous handlers are back after the block.
+    """
+
+    def __init__(self) -> None:
+        self._previous: dict = {}
+
+    def __enter__(self) -> "stop_signals_interrupt":
+        import signal
+        import threading
+
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for name in STOP_SIGNALS:
+            number = getattr(signal, name, None)
+            if number is not None and signal.getsignal(number) == signal.SIG_DFL:
+                self._previous[number] = signal.signal(number, raise_interrupted)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        import signal
+
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+        self._previous = {}
+        return False
+
+
+def raise_interrupted(signum: int, frame) -> None:
+    """The handler :class:`stop_signals_interrupt` sets: raise :class:`~posegraph.errors.Interrupted`."""
+    from posegraph.errors import Interrupted
+
+    raise Interrupted(signum)

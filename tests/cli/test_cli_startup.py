@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -187,3 +188,28 @@ def test_a_large_graph_gets_glibcs_lean_malloc_settings_back():
     first, second = proc.stdout.splitlines()
     assert first == "False"
     assert second in ("True True False", "False False False")  # glibc; elsewhere nothing is changed
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGTERM and SIGHUP as POSIX delivers them")
+def test_stop_signals_raise_as_interrupts_in_the_block_only():
+    """In a child: SIGTERM and SIGHUP raise Interrupted(signum) inside the block; after it, the
+    handlers are back (default); a SIGHUP ignored before (nohup) is not taken."""
+    proc = run_python(
+        """
+        import os, signal
+        from posegraph.cli.startup import stop_signals_interrupt
+        from posegraph.errors import Interrupted
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        try:
+            with stop_signals_interrupt():
+                os.kill(os.getpid(), signal.SIGHUP)  # ignored: nothing happens
+                os.kill(os.getpid(), signal.SIGTERM)
+                print("not interrupted")
+        except Interrupted as exc:
+            print("raised", exc.signum, isinstance(exc, KeyboardInterrupt))
+        print("after", signal.getsignal(signal.SIGTERM) == signal.SIG_DFL, signal.getsignal(signal.SIGHUP) == signal.SIG_IGN)
+        """
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split("\n")[:2] == [f"raised {int(signal.SIGTERM)} True", "after True True"]
