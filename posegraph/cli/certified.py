@@ -1,7 +1,10 @@
 """``optimize --certify``: certify SE-Sync's isotropic problem, polish its estimate with LM on the
-file's full cost, and compare that with LM from the chordal start."""
+file's full cost, and compare that with LM from the chordal start. With ``--robust gnc`` the problem
+certified and polished is that of the edges (and priors) GNC kept, and the report says so."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -9,9 +12,11 @@ from posegraph.cli.common import Status, Timer, UsageError, warn
 
 
 def check_certify_options(args) -> None:
-    """``--certify`` needs the plain least-squares cost (no robust loss) and a start of its own."""
-    if args.certify and args.robust != "none":
-        raise UsageError("--certify cannot be combined with --robust (the certificate is for the least-squares problem)")
+    """``--certify`` certifies a least-squares problem: the file's, or with ``--robust gnc`` that of the edges
+    GNC kept; an M-estimator's cost (huber, cauchy, …) has no such certificate."""
+    if args.certify and args.robust not in ("none", "gnc"):
+        raise UsageError(f"--certify cannot be combined with --robust {args.robust} (the certificate is for a "
+                         "least-squares problem: the file's, or with --robust gnc that of the edges it kept)")
 
 
 def pose_differences(group, poses_a: np.ndarray, poses_b: np.ndarray) -> tuple[float, float]:
@@ -25,12 +30,14 @@ def pose_differences(group, poses_a: np.ndarray, poses_b: np.ndarray) -> tuple[f
     return translation, float(np.max(np.arccos(cosine), initial=0.0))
 
 
-def polish_certified(held, chordal_result, params, status: Status, seconds: dict):
-    """``(result to write, report section)``: LM on ``held``'s cost from the certified estimate.
+def polish_certified(held, chordal_result, params, status: Status, seconds: dict, dropped: int | None = None):
+    """``(result to write, report section)``: LM on ``held``'s least-squares cost from the certified estimate.
 
-    ``chordal_result`` is LM's result from the chordal start, compared with the polished one: the
-    cost difference and the largest pose differences (both hold the same vertices at their file
-    pose, so they share a gauge). The section holds the certificate's fields too.
+    ``chordal_result`` is LM's result from the chordal start (with ``--robust gnc``: GNC's, whose last
+    solve is least squares over the edges it kept, ``held`` then being those edges' graph and
+    ``dropped`` how many it left out), compared with the polished one: the cost difference and the
+    largest pose differences (both hold the same vertices at their file pose, so they share a gauge).
+    The section holds the certificate's fields too.
     """
     from posegraph.certification.certificate import certify
     from posegraph.graph import held_vertices
@@ -39,12 +46,13 @@ def polish_certified(held, chordal_result, params, status: Status, seconds: dict
     with Timer() as t_cert:
         certificate = certify(held)
     seconds["certify"] = t_cert.seconds
-    status(f"certify: {certificate.status}, F(x) = {certificate.sesync_objective:.6g} ({t_cert.seconds:.3f} s)")
+    kept = "" if dropped is None else f" of the {held.num_edges} edges GNC kept ({dropped} dropped)"
+    status(f"certify{kept}: {certificate.status}, F(x) = {certificate.sesync_objective:.6g} ({t_cert.seconds:.3f} s)")
     start = certificate.poses.copy()
     fixed = held_vertices(held)
     start[fixed] = held.poses[fixed]
     with Timer() as t_polish:
-        polished = optimize(held, initial=start, params=params)
+        polished = optimize(held, initial=start, params=dataclasses.replace(params, loss=None))
     seconds["polish"] = t_polish.seconds
     translation, rotation = pose_differences(held.group, polished.poses, chordal_result.poses)
     difference = polished.final_cost - chordal_result.final_cost
@@ -53,6 +61,7 @@ def polish_certified(held, chordal_result, params, status: Status, seconds: dict
         **certificate.report(), "polished_cost": polished.final_cost, "chordal_lm_cost": chordal_result.final_cost,
         "cost_difference": difference, "max_translation_difference": translation,
         "max_rotation_difference_rad": rotation, "same_basin": bool(same),
+        "certified_graph": "file" if dropped is None else "gnc_inliers", "certified_edges": held.num_edges,
     }  # fmt: skip
     if not certificate.certified:
         warn(f"SE-Sync's isotropic problem was {certificate.status}; the result is LM's polish of its best "
@@ -63,8 +72,9 @@ def polish_certified(held, chordal_result, params, status: Status, seconds: dict
 def certify_summary(section: dict) -> list[str]:
     """The summary lines of ``optimize --certify``."""
     verdict = "same basin" if section["same_basin"] else "DIFFERENT basins"
+    graph = "" if section["certified_graph"] == "file" else f" of the {section['certified_edges']} edges GNC kept"
     return [
-        f"certificate:    {'certified' if section['certified'] else 'NOT certified'} (SE-Sync's isotropic problem: "
+        f"certificate:    {'certified' if section['certified'] else 'NOT certified'} (SE-Sync's isotropic problem{graph}: "
         f"F(x) = {section['sesync_objective']:.6g}, bound {section['suboptimality_bound']:.3g}, rank {section['rank']})",
         f"polished:       cost {section['polished_cost']:.12g} from the certificate's estimate, "
         f"{section['chordal_lm_cost']:.12g} from the chordal start ({verdict}: cost difference "

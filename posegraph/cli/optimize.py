@@ -103,7 +103,12 @@ def run(args) -> int:
     if args.certify:
         from posegraph.cli.certified import polish_certified
 
-        result, certified = polish_certified(held, result, params, status, seconds)
+        if robust is None:
+            result, certified = polish_certified(held, result, params, status, seconds)
+        else:  # the least-squares problem of the edges (and priors) GNC kept
+            kept = output_graph(held, robust.weights, drop=True, prior_weights=robust.prior_weights)
+            dropped = held.num_edges - kept.num_edges
+            result, certified = polish_certified(kept, result, params, status, seconds, dropped)
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
     weights = final_weights(held, args, result, robust)

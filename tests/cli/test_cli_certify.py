@@ -125,8 +125,35 @@ def test_optimize_certify_reports_the_basin(tmp_path, group):
     assert abs(section["cost_difference"]) <= 1e-6 * section["chordal_lm_cost"]
     assert section["max_rotation_difference_rad"] < 1e-4
     assert "certificate:    certified" in run.stdout and "same basin" in run.stdout
-    robust = run_cli("optimize", path, "-o", tmp_path / "o2.g2o", "--certify", "--robust", "gnc")
-    assert_one_error_line(robust, "--certify")
+    assert section["certified_graph"] == "file" and section["certified_edges"] == read_g2o(path).num_edges
+    huber = run_cli("optimize", path, "-o", tmp_path / "o2.g2o", "--certify", "--robust", "huber")
+    assert_one_error_line(huber, "--certify")
+    assert not (tmp_path / "o2.g2o").exists()
+
+
+def test_gnc_certify_certifies_the_edges_gnc_kept(tmp_path):
+    """A wrong loop closure (rotated by 3 rad): GNC drops it, and the certificate is of the other edges' problem."""
+    import dataclasses
+
+    from posegraph.certification.certificate import certify
+
+    graph, _ = loop_graph(21, n=25, loops=15, rotation_noise=0.02, translation_noise=0.02)
+    wrong = graph.measurements.copy()
+    closure = int(np.flatnonzero(np.abs(graph.edge_to - graph.edge_from) > 1)[0])
+    wrong[closure] = wrong[closure] @ SE3.exp(np.array([3.0, 0, 0, 0.0, 5.0, 0]))
+    write_g2o(tmp_path / "wrong.g2o", dataclasses.replace(graph, measurements=wrong))
+    run = run_cli("optimize", tmp_path / "wrong.g2o", "-o", tmp_path / "o.g2o", "--robust", "gnc", "--certify",
+                  "--report", tmp_path / "r.json")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    section = json.loads((tmp_path / "r.json").read_text())["certify"]
+    assert section["certified"] and section["certified_graph"] == "gnc_inliers"
+    assert section["certified_edges"] == graph.num_edges - 1 and "edges GNC kept" in run.stdout
+    keep = np.arange(graph.num_edges) != closure
+    inliers = dataclasses.replace(graph, edge_from=graph.edge_from[keep], edge_to=graph.edge_to[keep],
+                                  measurements=graph.measurements[keep], information=graph.information[keep])
+    assert section["sesync_objective"] == pytest.approx(certify(inliers).sesync_objective, rel=1e-9)
+    everything = run_cli("certify", tmp_path / "wrong.g2o", "-q", "--report", "-")
+    assert everything.returncode == 1  # with the wrong closure, F's optimum is not certified at this noise
 
 
 def test_shared_datasets_match_sesync_digits(shared_dataset):
