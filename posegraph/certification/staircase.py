@@ -88,18 +88,21 @@ def _hessian(u: np.ndarray, gradient: np.ndarray, direction: np.ndarray, data: "
 
 
 class DataMatrix:
-    """M as a sparse matrix, for ``∇F = 2 X M``, and the factor of ``M + λI``, λ =
-    :data:`PRECONDITIONER_REGULARISATION`·max diag(M), for ``Ẋ ↦ P_u((M + λI)⁻¹ Ẋ)`` rowwise (SE-Sync's
+    """M as a sparse matrix, for ``∇F = 2 X M``, and the factor of ``M + λ``, λ =
+    :data:`PRECONDITIONER_REGULARISATION`·max diag(M) over the translation rows and over the rotation rows, for ``Ẋ ↦ P_u((M + λI)⁻¹ Ẋ)`` rowwise (SE-Sync's
     regularised Cholesky preconditioner, with its 10⁶ condition-number cap); both made once for the
     whole staircase (M does not depend on the rank)."""
 
     def __init__(self, problem: SyncProblem):
         matrix = certificate_matrix(problem, np.zeros((problem.num_poses, problem.d, problem.d)))  # S with Λ = 0: M
         self.sparse = matrix.sparse
-        data = matrix.data.copy()
-        data[matrix.pattern.diagonal] += PRECONDITIONER_REGULARISATION * float(np.max(data[matrix.pattern.diagonal]))
+        # λ apart for the translation and the rotation rows (each 10⁻⁶ of its largest diagonal entry), so
+        # that metres as millimetres scale the preconditioner as they scale M: the path does not change
+        diagonal = matrix.data[matrix.pattern.diagonal]
+        translation = np.arange(diagonal.size) % matrix.pattern.block_size == 0
+        regularisation = np.where(translation, np.max(diagonal[translation]), np.max(diagonal[~translation]))
         self._solver = make_linear_solver("auto", matrix.pattern)
-        self._solver.factorize(data)
+        self._solver.factorize(matrix.data, PRECONDITIONER_REGULARISATION * regularisation)
 
     @staticmethod
     def _columns(z: np.ndarray) -> np.ndarray:

@@ -141,3 +141,101 @@ def test_certified_objective_never_exceeds_the_truths(seed, rotation_noise, two_
     at_truth = objective(sync_problem(graph), poses_to_blocks(truth))
     assert certificate.sesync_objective <= at_truth * (1 + 1e-9) + 1e-12
     assert certificate.dual_bound <= at_truth * (1 + 1e-9) + 1e-12
+
+
+def _scaled(graph, information_scale=1.0, unit=1.0):
+    """``graph`` with every information × ``information_scale`` and lengths in units of 1/``unit`` m."""
+    import dataclasses
+
+    d = graph.group.space_dim
+    measurements, poses = graph.measurements.copy(), graph.poses.copy()
+    measurements[:, :d, d] *= unit
+    poses[:, :d, d] *= unit
+    weight = np.ones(graph.group.dim)
+    weight[list(graph.group.translation_axes)] = 1.0 / unit
+    information = information_scale * graph.information * weight[:, None] * weight[None, :]
+    return dataclasses.replace(graph, measurements=measurements, information=information, poses=poses)
+
+
+@pytest.mark.parametrize("dim, noise, seed", [(2, 0.6, 2), (3, 0.5, 0)], ids=["2D-not-tight", "3D-local-minimum"])
+def test_scaling_the_information_or_the_units_never_changes_the_verdict(dim, noise, seed):
+    """Information × 1e-6 … 1e6 and metres as millimetres: the same verdict, the same relative bound, F
+    scaled by c (issue #32's scaled grids, where an absolute η certified a local minimum)."""
+    from datasets.certify_cases import lattice
+
+    graph = lattice(dim, 5 if dim == 3 else 6, noise, noise, seed=seed)
+    base = certify(graph)
+    for scale, unit in ((1e-6, 1.0), (1e-4, 1.0), (1e-2, 1.0), (1e2, 1.0), (1e4, 1.0), (1e6, 1.0), (1.0, 1e3)):
+        other = certify(_scaled(graph, scale, unit))
+        assert other.certified == base.certified, (scale, unit, other.status)
+        assert other.sesync_objective == pytest.approx(scale * base.sesync_objective, rel=1e-7)
+        assert other.relative_suboptimality == pytest.approx(base.relative_suboptimality, rel=1e-3, abs=1e-9)
+
+
+def test_a_local_minimum_with_small_information_is_not_certified():
+    """A 3D grid with 0.5 rad of noise and all information × 1e-4: a local minimum from random rotations,
+    lower points exist; certifying it as given says no, with a bound below the lowest point found."""
+    from datasets.certify_cases import lattice
+
+    graph = lattice(3, 5, 0.5, 0.5, 1e-4)
+    problem, rng = sync_problem(graph), np.random.default_rng(0)
+    best = certify(graph)
+    minima = sorted((_random_start_minimum(problem, rng, SE3), k) for k in range(6))
+    lowest = min(minima[0][0], best.sesync_objective)
+    rng = np.random.default_rng(0)
+    for value, k in minima[::-1][:2]:  # the two highest local minima found
+        assert value > lowest * (1 + 1e-4)
+        rotations = random_rotations(np.random.default_rng(100 + k), problem.num_poses)
+        u = np.concatenate([translations_given_rotations(problem, rotations)[:, :, None], rotations], axis=2)
+        u = refine_poses(problem, u)[0]
+        from posegraph.certification.certificate import blocks_to_poses
+
+        given = certify(graph, poses=blocks_to_poses(u, np.eye(4), 0))
+        assert not given.certified and given.lower_bound <= lowest
+    assert not best.certified or best.sesync_objective <= lowest * (1 + 1e-9)
+
+
+def test_a_ring_with_a_wrong_closure_is_not_certified():
+    """Issue #32's ring at natural scale (here 200 poses): one loop closure rotated by 3.1 rad. S + ηI
+    factorised with η = 1e-3 (SE-Sync's test) while Q − Λ has a clearly negative eigenvalue."""
+    from datasets.certify_cases import ring_with_wrong_closure
+
+    graph = ring_with_wrong_closure(200, 3.1)
+    certificate = certify(graph)
+    assert not certificate.certified and certificate.proven_min_eigenvalue < 0
+    assert certificate.lower_bound < certificate.sesync_objective * (1 - 1e-3)
+    at_file = certify(graph, poses=graph.poses)
+    assert certificate.sesync_objective <= at_file.sesync_objective  # the staircase never returns worse
+
+
+def test_eta_is_the_relative_tolerance_used():
+    from datasets.certify_cases import lattice
+
+    graph = lattice(2, 6, 0.6, 0.6, seed=2)
+    gap = certify(graph).relative_suboptimality
+    assert 1e-5 < gap < 0.5
+    assert certify(graph, eta=2 * gap).certified and not certify(graph, eta=gap / 2).certified
+    with pytest.raises(ValueError, match="eta"):
+        certify(graph, eta=0.0)
+
+
+@GROUPS
+def test_pose_priors_put_the_certified_estimate_in_the_world_frame(group):
+    """Exact measurements and two exact pose priors (one with an offset in 3D): certified at F ≈ 0, with
+    the poses of the truth itself, not of a rigid motion of it."""
+    import dataclasses
+
+    from posegraph.priors import Priors
+
+    graph, truth = loop_graph(11, n=20, loops=12, group=group)
+    k = group.matrix_size
+    offsets = np.broadcast_to(np.eye(k), (2, k, k)).copy()
+    if group is SE3:
+        offsets[1] = group.exp(np.array([0.1, -0.2, 0.3, 1.0, 2.0, -1.0]))
+    vertices = np.array([3, 17])
+    priors = Priors(vertices, truth[vertices] @ offsets, offsets, np.broadcast_to(np.eye(group.dim) * 100.0,
+                    (2, group.dim, group.dim)).copy(), np.zeros(0, np.int64), np.zeros((0, k - 1)),
+                    np.zeros((0, k - 1, k - 1)))  # fmt: skip
+    certificate = certify(dataclasses.replace(graph, priors=priors))
+    assert certificate.certified and certificate.components == 1
+    np.testing.assert_allclose(certificate.poses, truth, atol=1e-6)
