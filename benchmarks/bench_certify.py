@@ -4,6 +4,7 @@
     python -m benchmarks.bench_certify --sesync /path/to/SE-Sync    # also time SE-Sync's binary
     python -m benchmarks.bench_certify --repeat 7 --out certify.json path/to/other.g2o
     python -m benchmarks.bench_certify --choices --repeat 3       # PSD test and candidate alternatives
+    python -m benchmarks.bench_certify --sesync BIN --hard /tmp/hard   # also issue #32's hard cases
 
 Files: sphere2500, torus3D, parking-garage, smallGrid3D, sphere_bignoise_vertex3, intel, manhattan
 from ``../shared/datasets`` and city10000, CSAIL, MIT, kitti_00, ais2klinik from ``--sesync-data``
@@ -48,12 +49,14 @@ def default_files(sesync_data: Path) -> list[Path]:
     return [path for path in paths if path.is_file()]
 
 
-def sesync_objective(binary: str, path: Path) -> tuple[str, float]:
-    """SE-Sync's printed ``F(x)`` and its own total computation time for ``path``."""
+def sesync_objective(binary: str, path: Path) -> tuple[str, float, float]:
+    """SE-Sync's printed ``F(x)``, its own total computation time, and its ``F(x) − tr Λ`` for ``path``."""
     out = subprocess.run([binary, str(path)], capture_output=True, text=True, timeout=900).stdout
     value = re.search(r"Value of rounded pose estimates F\(x\): (\S+)", out)
-    total = re.search(r"Total elapsed computation time: (\S+)", out)
-    return (value.group(1) if value else "?"), (float(total.group(1)) if total else float("nan"))
+    total = re.findall(r"Total elapsed computation time: (\S+)", out)
+    bound = re.search(r"Suboptimality bound F\(x\) - tr\(Lambda\) of recovered pose estimate: (\S+)", out)
+    return ((value.group(1) if value else "?"), (float(total[-1]) if total else float("nan")),
+            (float(bound.group(1)) if bound else float("nan")))
 
 
 def measure(path: Path, repeat: int, binary: str | None) -> dict:
@@ -80,13 +83,16 @@ def row(path: Path, measured: dict, binary: str | None) -> dict:
     """One table row: certificate, digits against SE-Sync's, median walls and their ratio."""
     name, report = path.stem, measured["report"]
     issue_value, issue_seconds = ISSUE_FIGURES.get(name, ("?", float("nan")))
-    their_value, their_own = sesync_objective(binary, path) if binary else (issue_value, float("nan"))
+    their_value, their_own, their_bound = (sesync_objective(binary, path) if binary
+                                           else (issue_value, float("nan"), float("nan")))  # fmt: skip
     wall = statistics.median(w for w, _ in measured["ours"])
     their_wall = statistics.median(measured["theirs"]) if measured["theirs"] else issue_seconds
     return {
         "file": name, "certified": report["certified"], "rank": report["rank"],
         "F_ours": f"{report['sesync_objective']:.6g}", "F_sesync": their_value, "F_issue": issue_value,
         "suboptimality_bound": report["suboptimality_bound"], "min_eigenvalue": report["min_eigenvalue"],
+        "lower_bound": report["lower_bound"], "relative_suboptimality": report["relative_suboptimality"],
+        "sesync_bound": their_bound,
         "wall_ours": wall, "wall_sesync": their_wall, "sesync_measured": bool(measured["theirs"]),
         "sesync_own_seconds": their_own, "ratio": wall / their_wall,
         "max_rss_mb": max(r for _, r in measured["ours"]) / 1e6, "phases": report["seconds"],
@@ -94,16 +100,18 @@ def row(path: Path, measured: dict, binary: str | None) -> dict:
 
 
 def markdown(rows: list[dict]) -> str:
-    """The table of docs/certify.md."""
-    lines = ["| file | certified | F(x) ours | F(x) SE-Sync | same 6 digits | wall s ours | wall s SE-Sync | ratio | "
-             "phases s (read, candidate, refine, verify) | peak MB |",
-             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    """The table of docs/certify.md: our verdict and proven bound beside SE-Sync's F(x) and ``F(x) − tr Λ``
+    (SE-Sync says "global optimum" when its S + 1e-3 I factorises, whatever that bound)."""
+    lines = ["| file | certified | F(x) ours | proven lower bound (gap / F) | F(x) SE-Sync | SE-Sync's F(x) − tr Λ | "
+             "wall s ours | wall s SE-Sync | ratio | phases s (read, candidate, refine, verify, staircase) | peak MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
-        phases = ", ".join(f"{r['phases'].get(k, 0.0):.3f}" for k in ("read", "candidate", "refine", "verify"))
+        phases = ", ".join(f"{r['phases'].get(k, 0.0):.3f}" for k in ("read", "candidate", "refine", "verify", "staircase"))
         lines.append(
-            f"| {r['file']} | {'yes' if r['certified'] else 'NO'} (rank {r['rank']}) | {r['F_ours']} | {r['F_sesync']} | "
-            f"{'yes' if r['F_ours'] == r['F_sesync'] else 'no'} | {r['wall_ours']:.2f} | {r['wall_sesync']:.2f}"
-            f"{'' if r['sesync_measured'] else ' (issue)'} | {r['ratio']:.2f} | {phases} | {r['max_rss_mb']:.0f} |"
+            f"| {r['file']} | {'yes' if r['certified'] else 'NO'} (rank {r['rank']}) | {r['F_ours']} | "
+            f"{r['lower_bound']:.6g} ({r['relative_suboptimality']:.2g}) | {r['F_sesync']} | {r['sesync_bound']:.3g} | "
+            f"{r['wall_ours']:.2f} | {r['wall_sesync']:.2f}{'' if r['sesync_measured'] else ' (issue)'} | "
+            f"{r['ratio']:.2f} | {phases} | {r['max_rss_mb']:.0f} |"
         )
     return "\n".join(lines)
 
@@ -132,7 +140,7 @@ def verification_choices(path: Path, repeat: int) -> dict:
     from posegraph.certification import certificate as cert
     from posegraph.certification.local import refine_poses
     from posegraph.certification.problem import sync_problem
-    from posegraph.certification.verify import certificate_matrix, lambda_blocks, verify
+    from posegraph.certification.verify import certificate_matrix, data_scale, lambda_blocks, verify
     from posegraph.init.chordal import chordal_initialization
     from posegraph.io.g2o import read_g2o
 
@@ -143,7 +151,8 @@ def verification_choices(path: Path, repeat: int) -> dict:
     lower = sp.csc_matrix((matrix.data, matrix.pattern.indices, matrix.pattern.indptr), shape=(matrix.pattern.dimension,) * 2)
     full = (lower + sp.tril(lower, -1).T).tocsr()
     start = np.random.default_rng(0).standard_normal((full.shape[0], 4))
-    out = {"cholesky": _best_of(repeat, lambda: verify(matrix, u))[0]}
+    lambdas = lambda_blocks(problem, u)
+    out = {"cholesky": _best_of(repeat, lambda: verify(matrix, u, lambdas, 0.0, data_scale(problem)))[0]}
     out["lobpcg"], values = _best_of(repeat, lambda: spl.lobpcg(full, start, largest=False, tol=1e-8, maxiter=500)[0])
     out["lobpcg_min"] = float(np.min(values))
     out["eigsh_shift_invert"], values = _best_of(repeat, lambda: spl.eigsh(full, k=4, sigma=-1e-3, which="LM")[0])
@@ -161,12 +170,20 @@ def main(argv=None) -> int:
     parser.add_argument("files", nargs="*", type=Path, help="g2o files (default: the issue's 12 that exist here)")
     parser.add_argument("--sesync", metavar="BIN", help="SE-Sync's example binary, timed alternately with ours")
     parser.add_argument("--sesync-data", type=Path, default=SESYNC_DATA, help="folder of SE-Sync's data/*.g2o")
+    parser.add_argument("--hard", type=Path, metavar="DIR",
+                        help="also the hard cases of issue #32, written into DIR by datasets.certify_cases")
     parser.add_argument("--repeat", type=int, default=5, help="measured rounds per file (default 5)")
     parser.add_argument("--out", type=Path, help="write the rows as JSON here")
     parser.add_argument("--choices", action="store_true",
                         help="instead: time the alternatives for the PSD test and for the candidate (in-process)")
     args = parser.parse_args(argv)
     files = args.files or default_files(args.sesync_data)
+    if args.hard:
+        from datasets.certify_cases import ISSUE_CASES
+        from datasets.certify_cases import main as write_cases
+
+        write_cases([str(args.hard)])
+        files = files + [args.hard / f"{name}.g2o" for name in ISSUE_CASES]
     if args.choices:
         for path in files:
             print(path.stem, json.dumps(verification_choices(path, args.repeat)), flush=True)

@@ -199,10 +199,14 @@ def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
     one root while some edge joins two trees, so it ends with one tree per component, rooted at its
     smallest vertex index; a handful of rounds on pose graphs (each a few array passes over the edges).
     """
-    n = graph.num_vertices
+    return edge_components(graph.num_vertices, graph.edge_from, graph.edge_to)
+
+
+def edge_components(n: int, edge_from, edge_to) -> tuple[int, np.ndarray]:
+    """:func:`connected_components` of ``n`` vertices joined by the edges ``edge_from[k]``–``edge_to[k]``."""
     parent = np.arange(n)
-    i = np.asarray(graph.edge_from, dtype=np.int64)
-    j = np.asarray(graph.edge_to, dtype=np.int64)
+    i = np.asarray(edge_from, dtype=np.int64)
+    j = np.asarray(edge_to, dtype=np.int64)
     while True:
         root_i, root_j = parent[i], parent[j]
         split = root_i != root_j

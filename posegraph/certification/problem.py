@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.graph import PoseGraph, edge_components
 from posegraph.errors import GraphError
 
 __all__ = ["SyncProblem", "sync_problem", "component_problems", "isotropic_precisions", "edge_maps", "edge_residuals", "objective",
@@ -144,12 +144,8 @@ def _checked_precisions(information, group, source, lines) -> tuple[np.ndarray, 
 def component_problems(problem: SyncProblem) -> list[tuple[np.ndarray, SyncProblem]]:
     """``[(vertices, sub-problem), …]``: one per connected component with at least one edge, ``vertices``
     ``(n_c,)`` the problem's vertex indices of the component (in order; a world vertex is last)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components as components
-
-    n, m = problem.num_poses, problem.num_edges
-    adjacency = coo_matrix((np.ones(m), (problem.edge_from, problem.edge_to)), shape=(n, n))
-    count, labels = components(adjacency, directed=False)
+    n = problem.num_poses
+    _, labels = edge_components(n, problem.edge_from, problem.edge_to)
     edge_label = labels[problem.edge_from]
     out = []
     for label in np.unique(edge_label).tolist():  # one pass per component: few

@@ -106,8 +106,13 @@ class CertificateMatrix:
     """``(nnz,)`` CSC values of the lower triangle of S."""
 
     @cached_property
+    def _columns(self) -> np.ndarray:
+        """``(nnz,)`` column of each stored entry (:attr:`HessianPattern.entry_columns`, made once here)."""
+        return self.pattern.entry_columns
+
+    @cached_property
     def sparse(self):
-        """S as a symmetric scipy CSR matrix."""
+        """S as a symmetric scipy CSR matrix (the staircase's products; the verification needs no scipy)."""
         import scipy.sparse as sp
 
         p = self.pattern
@@ -115,12 +120,21 @@ class CertificateMatrix:
         return (lower + lower.T - sp.diags(self.data[p.diagonal])).tocsr()
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
-        """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)``."""
-        return self.sparse @ x
+        """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)`` (lower triangle, its transpose, less the diagonal
+        counted twice; by bincount, column by column)."""
+        if x.ndim == 2:
+            return np.stack([self.matvec(column) for column in x.T], axis=1)
+        p, dim, columns = self.pattern, self.pattern.dimension, self._columns
+        lower = np.bincount(p.indices, weights=self.data * x[columns], minlength=dim)
+        upper = np.bincount(columns, weights=self.data * x[p.indices], minlength=dim)
+        return lower + upper - self.data[p.diagonal] * x
 
     def dense(self) -> np.ndarray:
         """S as a dense array (small graphs, tests)."""
-        return self.sparse.toarray()
+        p, dim = self.pattern, self.pattern.dimension
+        out = np.zeros((dim, dim))
+        out[p.indices, self._columns] = self.data
+        return out + np.tril(out, -1).T
 
     @property
     def rotation_rows(self) -> np.ndarray:
