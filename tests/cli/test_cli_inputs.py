@@ -86,20 +86,16 @@ def fifo(tmp_path):
     return path
 
 
-def test_gzip_of_zeros_is_refused_at_its_first_block(tmp_path):
-    bomb, out = tmp_path / "bomb.g2o.gz", tmp_path / "out.g2o"
-    write_gzip_bomb(bomb, b"\0", EXPANDED)
-    run = run_capped("optimize", bomb, "-o", out)
-    assert_one_error_line(run, str(bomb), "not a text g2o file (the gzip file holds binary data)")
-    assert sorted(os.listdir(tmp_path)) == ["bomb.g2o.gz"]
-
-
-def test_gzip_of_newlines_is_read_at_constant_memory(tmp_path):
-    bomb, out = tmp_path / "blank.g2o.gz", tmp_path / "out.g2o"
-    write_gzip_bomb(bomb, b"\n", EXPANDED)
-    run = run_capped("optimize", bomb, "-o", out)
-    assert_one_error_line(run, str(bomb), "there is no pose graph to read")
-    assert sorted(os.listdir(tmp_path)) == ["blank.g2o.gz"]
+@pytest.mark.parametrize("name, byte, message", [
+    ("bomb.g2o.gz", b"\0", "not a text g2o file (the gzip file holds binary data)"),  # refused at its first block
+    ("blank.g2o.gz", b"\n", "there is no pose graph to read"),  # read at constant memory
+], ids=["zeros", "newlines"])  # fmt: skip
+def test_a_gzip_bomb_ends_in_one_line_and_bounded_memory(tmp_path, name, byte, message):
+    bomb = tmp_path / name
+    write_gzip_bomb(bomb, byte, EXPANDED)
+    run = run_capped("optimize", bomb, "-o", tmp_path / "out.g2o")
+    assert_one_error_line(run, str(bomb), message)
+    assert sorted(os.listdir(tmp_path)) == [name]
 
 
 def test_a_fifo_of_blank_lines_is_read_to_its_end_at_constant_memory(tmp_path, fifo):
