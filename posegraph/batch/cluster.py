@@ -50,8 +50,11 @@ def batch_client(*, client=None, scheduler: str | None = None, workers: int | No
         return
     with kept_environment(), _worker_environment(), contextlib.ExitStack() as started:
         with _workers_ignore_interrupts():
+            # CRITICAL, not ERROR: a worker whose heartbeat fails while the cluster closes after Ctrl-C
+            # logs that at ERROR with a traceback, on the user's terminal (each file's own errors are
+            # in its row and log, not in Dask's)
             cluster = started.enter_context(distributed.LocalCluster(
-                n_workers=workers or default_workers(), silence_logs=logging.ERROR, **LOCAL_CLUSTER_OPTIONS))
+                n_workers=workers or default_workers(), silence_logs=logging.CRITICAL, **LOCAL_CLUSTER_OPTIONS))
             local = started.enter_context(distributed.Client(cluster, set_as_default=False))
         yield local
 
