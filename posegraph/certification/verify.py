@@ -180,6 +180,8 @@ class Verification:
     eigenvector: np.ndarray
     """``((d+1)n,)`` the vector ``[t; v]`` with v the unit Ritz vector and t its optimal translations, so
     that ``wᵀ S w = vᵀ(Q − Λ)v``: the staircase's escape direction when θ < 0."""
+    escape_directions: np.ndarray
+    """``(k, (d+1)n)`` the same for each Ritz value at most a tenth of θ < 0 (θ's first; k = 1 when θ ≥ 0)."""
     factorizations: int
     """Cholesky factorisations tried."""
 
@@ -199,8 +201,8 @@ def verify(matrix: CertificateMatrix, u: np.ndarray, lambdas: np.ndarray, budget
     psd = shift <= max(budget, floor)
     iterations = MAX_ITERATIONS[0 if psd else 1]
     # a failed shift proves an eigenvalue at or below −failed: iterate until the Ritz value is there too
-    value, residual, vector = _smallest_ritz_pair(matrix, solver, u, iterations, RESIDUAL_TOLERANCE * scale / dn,
-                                                  -failed)  # fmt: skip
+    value, residual, vectors = _smallest_ritz_pair(matrix, solver, u, iterations, RESIDUAL_TOLERANCE * scale / dn,
+                                                   -failed)  # fmt: skip
     tighter = max(-value, 0.0) + residual + floor
     if tighter < shift:
         tried += 1
@@ -210,7 +212,7 @@ def verify(matrix: CertificateMatrix, u: np.ndarray, lambdas: np.ndarray, budget
         except NotPositiveDefiniteError:
             pass
     trace = float(np.trace(lambdas, axis1=1, axis2=2).sum())
-    return Verification(bool(psd), value, residual, shift, trace - dn * shift, vector, tried)
+    return Verification(bool(psd), value, residual, shift, trace - dn * shift, vectors[0], vectors, tried)
 
 
 def _factorize(matrix: CertificateMatrix, solver, anchor: int, shift: float) -> None:
@@ -257,7 +259,8 @@ def _orthonormalising(columns: np.ndarray) -> np.ndarray:
 
 def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, iterations: int, tolerance: float,
                         ceiling: float = np.inf):  # fmt: skip
-    """``(θ, residual, [t; v])`` (v a unit vector, t its optimal translations): subspace iteration with the factorised ``P_σ`` (module docstring),
+    """``(θ, residual, [[t; v], …])`` (v a unit Ritz vector, t its optimal translations; θ's first, then those
+    of the other clearly negative Ritz values): subspace iteration with the factorised ``P_σ`` (module docstring),
     until the smallest Ritz pair's residual is below ``tolerance`` and its value at most ``ceiling``."""
     rows = matrix.rotation_rows
     dim, r = matrix.pattern.dimension, u.shape[1]
@@ -278,5 +281,7 @@ def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, iterat
         block = basis @ vectors
         if residuals[0] <= tolerance and values[0] <= ceiling:
             break
-    vector = full @ vectors[:, 0]
-    return float(values[0]), float(residuals[0]), vector / np.linalg.norm(vector[rows])
+    # the Ritz vectors of clearly negative values (at least a tenth of the smallest): escape directions
+    count = max(1, int(np.count_nonzero(values <= 0.1 * min(values[0], 0.0)))) if values[0] < 0 else 1
+    chosen = full @ vectors[:, :count]
+    return float(values[0]), float(residuals[0]), (chosen / np.linalg.norm(chosen[rows], axis=0)).T
