@@ -40,6 +40,9 @@ RELATIVE_DECREASE_TOLERANCE = 1e-5
 1e-6 there): the level's point is then good enough to escape from and to round; the certificate itself is
 read at rank d after Newton's refinement, or from the bound, which holds at any point. (1e-4 halves the
 time on the noisy grids but weakens their proven bounds by 1–2 %; 1e-6 costs 1.5–2× for the same bounds.)"""
+POLISH = ((1e-10, 0.0), 50)
+"""``((gradient test, decrease test), iterations)`` of the last level's second run (when it ended below the
+rank cap)."""
 TCG_KAPPA = 0.1
 MAX_TRUST_REGION_ITERATIONS = 500
 ESCAPE_ROWS = 3
@@ -162,20 +165,25 @@ def _truncated_cg(u, gradient, rgrad, z, radius, data: DataMatrix, value):
     return eta, h_eta, e_pe
 
 
-def trust_region(problem: SyncProblem, u: np.ndarray, data: DataMatrix | None = None,
-                 radius: float | None = None) -> np.ndarray:  # fmt: skip
+def trust_region(problem: SyncProblem, u: np.ndarray, data: DataMatrix | None = None, radius: float | None = None,
+                 tolerances: tuple[float, float] = (None, None),
+                 max_iterations: int = MAX_TRUST_REGION_ITERATIONS) -> np.ndarray:  # fmt: skip
     """A first-order critical point of F on ``(ℝ^r × St(d, r))^n`` from ``u`` (module docstring):
     until ``‖grad F‖_P² ≤`` :data:`GRADIENT_TOLERANCE`·F, P the preconditioner of ``data``
-    (:class:`DataMatrix`, made here if not given); ``radius`` the first trust radius in the P-norm (default √F)."""
+    (:class:`DataMatrix`, made here if not given), or an accepted step lowers F by less than
+    :data:`RELATIVE_DECREASE_TOLERANCE`·F (``tolerances`` overrides the two); ``radius`` the first trust
+    radius in the P-norm (default √F); at most ``max_iterations`` iterations."""
+    gradient_tolerance = GRADIENT_TOLERANCE if tolerances[0] is None else tolerances[0]
+    decrease_tolerance = RELATIVE_DECREASE_TOLERANCE if tolerances[1] is None else tolerances[1]
     data = DataMatrix(problem) if data is None else data
     maps = edge_maps(problem)
     value = objective(problem, u, maps)
     radius = np.sqrt(value) if radius is None else radius
-    for _ in range(MAX_TRUST_REGION_ITERATIONS):
+    for _ in range(max_iterations):
         gradient = data.gradient(u)
         rgrad = _project(u, gradient)
         z = data(u, rgrad)
-        if np.sum(z * rgrad) <= GRADIENT_TOLERANCE * value:
+        if np.sum(z * rgrad) <= gradient_tolerance * value:
             break
         step, h_step, step_norm_sq = _truncated_cg(u, gradient, rgrad, z, radius, data, value)
         predicted = -np.sum(rgrad * step) - 0.5 * np.sum(step * h_step)
@@ -188,7 +196,7 @@ def trust_region(problem: SyncProblem, u: np.ndarray, data: DataMatrix | None = 
             radius *= 2.0
         if gain > 0.1:
             decrease, u, value = value - trial_value, trial, trial_value
-            if decrease <= RELATIVE_DECREASE_TOLERANCE * value:
+            if decrease <= decrease_tolerance * value:
                 break
         if radius**2 < 1e-28 * value or predicted <= 1e-15 * value:
             break
@@ -243,29 +251,45 @@ def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verificatio
     from posegraph.certification.certificate import verify_point
 
     result = StaircaseResult(u, objective(problem, u), check.lower_bound, _trace(problem, u), check, u.shape[1])
-    data, best_rounded, best_rounded_value = DataMatrix(problem), None, np.inf
+    data, best_rounded = DataMatrix(problem), None
     while result.rank < max_rank and not check.positive_semidefinite:
         lifted = _escape(problem, u, check, min(ESCAPE_ROWS, max_rank - result.rank))
         if lifted is None:
             break
-        u = trust_region(problem, lifted, data)
-        result.rank = u.shape[1]
-        rounded = round_solution(problem, u, anchor)
-        value = objective(problem, rounded)
-        if value < best_rounded_value:
-            best_rounded, best_rounded_value = rounded, value
-        lambdas, check = verify_point(problem, u, min(value, result.best_value), budget, anchor)
+        u, check, best_rounded = _level(problem, lifted, data, budget, anchor, result, best_rounded)
+    if best_rounded is None:
+        return result
+    if result.rank < max_rank:
+        # the level solved, or whose escape failed, once more to the polish tolerance: its bound is the
+        # one reported, and the levels' looser stop can leave it well short of the relaxation's value
+        _, _, best_rounded = _level(problem, u, data, budget, anchor, result, best_rounded, POLISH)
+    refined = refine_poses(problem, best_rounded, anchor)[0]
+    refined[:, :, 0] = translations_given_rotations(problem, refined[:, :, 1:], anchor)
+    value = objective(problem, refined)
+    if value < result.best_value:
+        result.best, result.best_value = refined, value
+        lambdas, check = verify_point(problem, refined, value, budget, anchor)
         _keep_bound(result, check, lambdas)
-        result.levels.append((result.rank, objective(problem, u), value, check.lower_bound, check.min_eigenvalue))
-    if best_rounded is not None:
-        refined = refine_poses(problem, best_rounded, anchor)[0]
-        refined[:, :, 0] = translations_given_rotations(problem, refined[:, :, 1:], anchor)
-        value = objective(problem, refined)
-        if value < result.best_value:
-            result.best, result.best_value = refined, value
-            lambdas, check = verify_point(problem, refined, value, budget, anchor)
-            _keep_bound(result, check, lambdas)
     return result
+
+
+def _level(problem, start, data, budget, anchor, result: StaircaseResult, best_rounded, settings=((None, None), None)):
+    """One level from ``start``: the trust region, the rounding (the best kept), the test of Q − Λ (the best
+    bound kept in ``result``); ``(point, its Verification, best rounding so far)``."""
+    from posegraph.certification.certificate import verify_point
+
+    tolerances, iterations = settings
+    u = trust_region(problem, start, data, tolerances=tolerances,
+                     max_iterations=MAX_TRUST_REGION_ITERATIONS if iterations is None else iterations)
+    result.rank = u.shape[1]
+    rounded = round_solution(problem, u, anchor)
+    value = objective(problem, rounded)
+    if best_rounded is None or value < objective(problem, best_rounded):
+        best_rounded = rounded
+    lambdas, check = verify_point(problem, u, min(value, result.best_value), budget, anchor)
+    _keep_bound(result, check, lambdas)
+    result.levels.append((result.rank, objective(problem, u), value, check.lower_bound, check.min_eigenvalue))
+    return u, check, best_rounded
 
 
 def _keep_bound(result: StaircaseResult, check: Verification, lambdas: np.ndarray) -> None:
