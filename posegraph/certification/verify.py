@@ -122,12 +122,17 @@ class CertificateMatrix:
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)`` (lower triangle, its transpose, less the diagonal
         counted twice; by bincount, column by column)."""
-        if x.ndim == 2:
-            return np.stack([self.matvec(column) for column in x.T], axis=1)
         p, dim, columns = self.pattern, self.pattern.dimension, self._columns
-        lower = np.bincount(p.indices, weights=self.data * x[columns], minlength=dim)
-        upper = np.bincount(columns, weights=self.data * x[p.indices], minlength=dim)
-        return lower + upper - self.data[p.diagonal] * x
+        block = x.reshape(dim, -1)
+        k = block.shape[1]
+        slots = np.arange(k)
+        # one bincount for all k columns: entry (row, c) of the product goes to slot row·k + c
+        lower = np.bincount((p.indices[:, None] * k + slots).ravel(), weights=(self.data[:, None] * block[columns]).ravel(),
+                            minlength=dim * k)  # fmt: skip
+        upper = np.bincount((columns[:, None] * k + slots).ravel(), weights=(self.data[:, None] * block[p.indices]).ravel(),
+                            minlength=dim * k)  # fmt: skip
+        out = (lower + upper).reshape(dim, k) - self.data[p.diagonal, None] * block
+        return out.reshape(x.shape)
 
     def dense(self) -> np.ndarray:
         """S as a dense array (small graphs, tests)."""
