@@ -65,7 +65,7 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: 
     can be made a folder one can write in; made later, by :func:`_make_out_dir`), the summary's path."""
     from posegraph.batch.files import plan_jobs
     from posegraph.batch.options import BatchError, check_options, option_argv
-    from posegraph.batch.rows import csv_path_for
+    from posegraph.batch.rows import summary_paths
     from posegraph.cli.common import check_output
 
     paths = [os.fspath(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
@@ -82,7 +82,7 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: 
         require_matplotlib()
     _check_out_dir(out_dir)
     taken = {os.path.realpath(p) for job in jobs for p in (job.input, *job.outputs)}
-    for summary in (report, csv_path_for(report)):
+    for summary in summary_paths(report):
         if not _made_with(summary, out_dir):  # else checked once OUT_DIR is made (_make_out_dir)
             check_output(summary, what="summary")
         if os.path.realpath(summary) in taken:
@@ -115,11 +115,11 @@ def _made_with(path: str, out_dir: str) -> bool:
 
 def _make_out_dir(out_dir: str, report: str) -> None:
     """Make OUT_DIR, then check the summary's path as :func:`_plan` did when its folder existed."""
-    from posegraph.batch.rows import csv_path_for
+    from posegraph.batch.rows import summary_paths
     from posegraph.cli.common import check_output
 
     os.makedirs(out_dir, exist_ok=True)
-    for summary in (report, csv_path_for(report)):
+    for summary in summary_paths(report):
         check_output(summary, what="summary")
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["ROW_FIELDS", "file_row", "skipped_row", "failed_row", "tally", "write_summary", "csv_path_for"]
+__all__ = ["ROW_FIELDS", "file_row", "skipped_row", "failed_row", "tally", "write_summary", "csv_path_for", "summary_paths"]
 
 ROW_FIELDS = ("file", "vertices", "edges", "final_cost", "chi2_per_dof", "iterations", "seconds", "outliers",
               "status", "reason", "output", "report", "log")
@@ -90,9 +90,23 @@ def csv_path_for(summary_path: str) -> str:
     return os.path.splitext(summary_path)[0] + ".csv"
 
 
+def summary_paths(summary_path: str) -> tuple[str, ...]:
+    """The files a summary is written to: the JSON and its CSV (:func:`csv_path_for`), or only the JSON when
+    ``summary_path`` names a character device or a FIFO (``--report /dev/null`` discards the summary: it
+    must not leave a ``/dev/null.csv`` beside it, nor a second stream interleaved into a pipe)."""
+    import stat
+
+    try:
+        mode = os.stat(summary_path).st_mode
+    except OSError:
+        return summary_path, csv_path_for(summary_path)
+    special = stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+    return (summary_path,) if special else (summary_path, csv_path_for(summary_path))
+
+
 def write_summary(rows: list, path: str, command: list | None = None) -> None:
     """The summary as JSON at ``path`` (``counts`` by status, ``files``: the rows in input order,
-    ``command`` if given) and as CSV beside it (:func:`csv_path_for`), written together."""
+    ``command`` if given) and as CSV beside it (:func:`summary_paths`), written together."""
     import csv
     import io
 
@@ -106,6 +120,6 @@ def write_summary(rows: list, path: str, command: list | None = None) -> None:
     writer.writeheader()
     writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
     with StagedOutputs() as outputs:
-        for target, text in ((path, json_text(summary)), (csv_path_for(path), table.getvalue())):
+        for target, text in zip(summary_paths(path), (json_text(summary), table.getvalue())):
             outputs.write_text(target, text)
         outputs.commit()

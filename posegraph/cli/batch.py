@@ -122,7 +122,7 @@ def _bar(finished: int, total: int, width: int = 24) -> str:
 def _print_table(rows: list, args) -> None:
     """The summary on stdout (unless ``--quiet``): one line per file, then the counts and where it is."""
     from posegraph.batch.many import SUMMARY_NAME
-    from posegraph.batch.rows import csv_path_for, tally
+    from posegraph.batch.rows import summary_paths, tally
 
     if args.quiet:
         return
@@ -138,4 +138,4 @@ def _print_table(rows: list, args) -> None:
 
     summary = args.report or os.path.join(args.out_dir, SUMMARY_NAME)
     counts = ", ".join(f"{n} {status}" for status, n in tally(rows).items() if n)
-    print(f"{len(rows)} file{'s' if len(rows) != 1 else ''}: {counts}; summary: {summary}, {csv_path_for(summary)}", flush=True)
+    print(f"{len(rows)} file{'s' if len(rows) != 1 else ''}: {counts}; summary: {', '.join(summary_paths(summary))}", flush=True)

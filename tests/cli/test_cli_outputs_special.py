@@ -170,16 +170,27 @@ def test_batch_summary_through_links(tmp_path, graph):
     assert sorted(os.listdir(tmp_path)) == ["link.csv", "link.json", "out", "s.csv", "s.json"]
 
 
-def test_batch_summary_into_a_device_and_a_fifo(tmp_path, graph):
-    """``--report S.json`` a device, its ``S.csv`` a FIFO: both written into, both left as they were."""
+def test_batch_summary_into_a_device_writes_no_csv_beside_it(tmp_path, graph):
+    """``--report`` a device (``/dev/null``'s twin): the summary goes into it, and no ``.csv`` is made beside
+    it (as root, ``--report /dev/null`` would otherwise leave a regular ``/dev/null.csv``)."""
     pytest.importorskip("distributed")
-    device_twin(tmp_path / "s.json")
+    device_twin(tmp_path / "null")
+    run = run_cli("batch", graph, "-o", tmp_path / "out", "--report", tmp_path / "null", "--workers", 1)
+    assert run.returncode == 0, run.stderr
+    assert_node(tmp_path / "null", "device")
+    assert sorted(os.listdir(tmp_path)) == ["null", "out"]
+    assert f"summary: {tmp_path / 'null'}\n" in run.stdout
+
+
+def test_batch_summary_csv_into_a_fifo(tmp_path, graph):
+    """``--report S.json`` a file, its ``S.csv`` a FIFO: the CSV is written into the FIFO, left a FIFO."""
+    pytest.importorskip("distributed")
     csv = FifoReader(tmp_path / "s.csv")
     run = run_cli("batch", graph, "-o", tmp_path / "out", "--report", tmp_path / "s.json", "--workers", 1, "-q")
     assert run.returncode == 0, run.stderr
     assert csv.received().startswith(b"file,vertices,")
-    assert_node(tmp_path / "s.json", "device")
     assert_node(tmp_path / "s.csv", "fifo")
+    assert (tmp_path / "s.json").read_text().startswith("{")
     assert sorted(os.listdir(tmp_path)) == ["out", "s.csv", "s.json"]
 
 
