@@ -89,12 +89,18 @@ def _retract(u: np.ndarray, step: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hessian(u: np.ndarray, gradient: np.ndarray, direction: np.ndarray, data: "DataMatrix") -> np.ndarray:
-    """Riemannian Hessian of F at ``u`` applied to the tangent ``direction`` (``gradient`` = ∇F(u))."""
+def _hessian(u: np.ndarray, multipliers: np.ndarray, direction: np.ndarray, data: "DataMatrix") -> np.ndarray:
+    """Riemannian Hessian of F at ``u`` applied to the tangent ``direction``: ``P_u(2 Ẋ M − Ẏ Sym(Yᵀ ∇_Y F))``,
+    ``multipliers`` the blocks ``Sym(Y_iᵀ ∇_{Y_i} F)`` (:func:`_multipliers`, made once per point)."""
     out = data.gradient(direction)  # 2 Ẋ M (∇F is linear in u)
-    sym = np.swapaxes(u[:, :, 1:], 1, 2) @ gradient[:, :, 1:]
-    out[:, :, 1:] -= direction[:, :, 1:] @ (0.5 * (sym + np.swapaxes(sym, 1, 2)))
+    out[:, :, 1:] -= direction[:, :, 1:] @ multipliers
     return _project(u, out)
+
+
+def _multipliers(u: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """``(n, d, d)`` ``Sym(Y_iᵀ ∇_{Y_i} F)`` (twice Λ_i) for ``gradient`` = ∇F(u)."""
+    product = np.swapaxes(u[:, :, 1:], 1, 2) @ gradient[:, :, 1:]
+    return 0.5 * (product + np.swapaxes(product, 1, 2))
 
 
 class DataMatrix:
@@ -141,12 +147,13 @@ def _truncated_cg(u, gradient, rgrad, z, radius, data: DataMatrix, value):
     superlinear term ``‖g‖^θ``, which has units; measured in the P-norm so that it does not depend on
     the scale of the data)."""
     eta, h_eta = np.zeros_like(u), np.zeros_like(u)
+    multipliers = _multipliers(u, gradient)
     residual = rgrad.copy()
     direction, z_r = -z, np.sum(z * rgrad)
     e_pe, e_pd, d_pd = 0.0, 0.0, z_r
     target = z_r * TCG_KAPPA**2
     for _ in range(MAX_CG_ITERATIONS):
-        h_dir = _hessian(u, gradient, direction, data)
+        h_dir = _hessian(u, multipliers, direction, data)
         curvature = np.sum(direction * h_dir)
         alpha = z_r / curvature if curvature > 0 else np.inf
         e_pe_new = e_pe + 2.0 * alpha * e_pd + alpha**2 * d_pd
