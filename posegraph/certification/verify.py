@@ -46,6 +46,7 @@ estimate) tightens the proven σ. Up to the Cholesky factorisation's round-off (
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -120,19 +121,17 @@ class CertificateMatrix:
         return (lower + lower.T - sp.diags(self.data[p.diagonal])).tocsr()
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
-        """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)`` (lower triangle, its transpose, less the diagonal
-        counted twice; by bincount, column by column)."""
+        """``S x`` for ``x`` ``((d+1)n,)`` or ``((d+1)n, k)``: by scipy's sparse product once scipy.sparse is
+        loaded (the staircase loads it; 20–40× faster), else by bincount, column by column (the lower
+        triangle, its transpose, less the diagonal counted twice), so that certifying at rank d imports no scipy."""
+        if "scipy.sparse" in sys.modules:
+            return self.sparse @ x
+        if x.ndim == 2:
+            return np.stack([self.matvec(column) for column in x.T], axis=1)
         p, dim, columns = self.pattern, self.pattern.dimension, self._columns
-        block = x.reshape(dim, -1)
-        k = block.shape[1]
-        slots = np.arange(k)
-        # one bincount for all k columns: entry (row, c) of the product goes to slot row·k + c
-        lower = np.bincount((p.indices[:, None] * k + slots).ravel(), weights=(self.data[:, None] * block[columns]).ravel(),
-                            minlength=dim * k)  # fmt: skip
-        upper = np.bincount((columns[:, None] * k + slots).ravel(), weights=(self.data[:, None] * block[p.indices]).ravel(),
-                            minlength=dim * k)  # fmt: skip
-        out = (lower + upper).reshape(dim, k) - self.data[p.diagonal, None] * block
-        return out.reshape(x.shape)
+        lower = np.bincount(p.indices, weights=self.data * x[columns], minlength=dim)
+        upper = np.bincount(columns, weights=self.data * x[p.indices], minlength=dim)
+        return lower + upper - self.data[p.diagonal] * x
 
     def dense(self) -> np.ndarray:
         """S as a dense array (small graphs, tests)."""

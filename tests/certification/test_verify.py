@@ -134,3 +134,23 @@ def test_verdict_and_shift_do_not_depend_on_scale_or_units(group, information_sc
     assert result.min_eigenvalue == pytest.approx(information_scale * base.min_eigenvalue, rel=1e-6)
     assert result.proven_shift == pytest.approx(information_scale * base.proven_shift, rel=1e-6)
     assert result.lower_bound == pytest.approx(information_scale * base.lower_bound, rel=1e-6)
+
+
+def test_products_by_bincount_and_by_scipy_agree(monkeypatch):
+    """S x for a vector and a block: scipy's product (once scipy.sparse is loaded) and the bincount one (the
+    scipy-free rank-d path) both equal the dense product."""
+    import sys
+
+    import scipy.sparse  # noqa: F401 (loaded: the scipy branch)
+
+    problem, u = _critical_point(SE3)
+    matrix = certificate_matrix(problem, lambda_blocks(problem, u))
+    rng = np.random.default_rng(1)
+    vector, block = rng.normal(size=matrix.pattern.dimension), rng.normal(size=(matrix.pattern.dimension, 5))
+    dense = matrix.dense()
+    with_scipy = matrix.matvec(vector), matrix.matvec(block)
+    monkeypatch.delitem(sys.modules, "scipy.sparse")
+    without = matrix.matvec(vector), matrix.matvec(block)
+    for got in (*with_scipy, *without):
+        expected = dense @ (vector if got.ndim == 1 else block)
+        np.testing.assert_allclose(got, expected, atol=1e-10 * np.abs(dense).max())
