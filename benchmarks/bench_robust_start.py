@@ -46,6 +46,7 @@ def run(path: Path, fraction: float, seed: int, log=print) -> None:
     from posegraph.init import initialize
     from posegraph.io.g2o import read_g2o
     from posegraph.robust import starts
+    from posegraph.robust.measurements import weighted_graph
     from posegraph.solve import optimize
 
     clean = read_g2o(path)
@@ -72,7 +73,7 @@ def run(path: Path, fraction: float, seed: int, log=print) -> None:
     rejected = ~robust.inliers
     verdict = f"{rejected.sum()} ({np.count_nonzero(rejected & outlier)} true, {np.count_nonzero(rejected & ~outlier)} false); {robust.iterations} GNC iterations"
     log(_row("robust chordal (GNC-TLS over chordal)", seconds, robust.poses, clean, reference, verdict))
-    final, more = _timed(lambda: optimize(starts.weighted_graph(graph, np.round(robust.weights)), initial=robust.poses).poses)
+    final, more = _timed(lambda: optimize(weighted_graph(graph, np.round(robust.weights)), initial=robust.poses).poses)
     log(_row("robust chordal, then LM on the weighted graph", seconds + more, final, clean, reference, "same weights"))
 
 
