@@ -54,7 +54,7 @@ def compare(name: str, repeats: int) -> dict:
     """Side-by-side timing and agreement on one shared dataset."""
     import posegraph
     from posegraph.covariance import marginal_covariances
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
 
     graph = posegraph.read_g2o(SHARED_DATASETS / f"{name}.g2o")
     poses = posegraph.optimize(graph).poses
@@ -159,7 +159,7 @@ def worker(shape: str, size: int) -> dict:
 
     from datasets.synthetic import generate
     from posegraph import covariance as cv
-    from posegraph.cholmod import auto_ordering
+    from posegraph.linalg.cholmod import auto_ordering
 
     dataset = generate(shape, size, seed=0)
     graph, poses = dataset.graph, dataset.ground_truth

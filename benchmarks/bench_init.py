@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from posegraph.errors import InputError, InputWarning
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init import (
     chordal_initialization,
     chordal_rotations,

@@ -40,7 +40,7 @@ def main(argv=None) -> None:
     parser.add_argument("datasets", nargs="*", default=list(DEFAULT), help="names in ../shared/datasets or paths")
     args = parser.parse_args(argv)
     from posegraph.export_open3d import require_open3d, to_open3d_pose_graph
-    from posegraph.graph import component_anchors
+    from posegraph.model.graph import component_anchors
     from posegraph.io.g2o import read_g2o
     from posegraph.solve import optimize
     from posegraph.solve.residuals import cost

@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, vertex_ranks
+from posegraph.model.graph import PoseGraph, vertex_ranks
 from posegraph.lie import se2, se3, so2, so3
 from posegraph.lie.group import SE2, SE3, SIM3_G2O, LieGroup
 

@@ -8,7 +8,7 @@ graph.group.dim``: 6 for SE(3), 3 for SE(2)); it is what ``gtsam.Marginals(graph
 values).marginalCovariance(key)`` returns for the same graph.
 
 Gauge. The solver holds ``FIX`` vertices and one anchor per connected component constant
-(:func:`posegraph.graph.held_vertices`); they have no variables in H. Their covariance is
+(:func:`posegraph.model.graph.held_vertices`); they have no variables in H. Their covariance is
 reported as **zero**: every other covariance is *relative to the held vertices* — the
 uncertainty of a pose given that its component's anchor (or the fixed vertices) is known
 exactly. It is the limit of gtsam's with a prior of vanishing σ on the held vertices: such a
@@ -51,7 +51,7 @@ def hessian_at(graph, poses):
     variables; ``pattern.variable_of`` maps vertices to block columns), ``data`` the CSC values
     of H's lower triangle in that pattern.
     """
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
     from posegraph.solve.linearize import linearize
     from posegraph.solve.sparsity import analyze_pattern, hessian_values
 
@@ -84,12 +84,12 @@ def factor_hessian(pattern, data, solver: str = "auto") -> tuple[CSCFactor, np.n
 
     ``pattern``/``data``: H as :func:`hessian_at` returns it; ``solver`` as
     :func:`posegraph.solve.linear.make_linear_solver` (``"auto"``: CHOLMOD through cvxopt, ordered
-    by :func:`posegraph.cholmod.auto_ordering` on the vertex graph — AMD, or METIS nested
+    by :func:`posegraph.linalg.cholmod.auto_ordering` on the vertex graph — AMD, or METIS nested
     dissection from 10,000 free vertices — and postordered by CHOLMOD; SuperLU without cvxopt).
     The backend hands its factor over (``factor(release=True)``): one copy of L fewer. The order
     keeps each vertex's ``d`` variables together (a block ordering, postordered: a vertex's
     variables form a chain of the elimination tree); checked. Raises
-    :class:`posegraph.cholmod.NotPositiveDefiniteError` for an H that is not positive definite.
+    :class:`posegraph.linalg.cholmod.NotPositiveDefiniteError` for an H that is not positive definite.
     """
     backend = _factorised(pattern, data, solver)
     return _handed_over(backend, pattern.block_size)
@@ -506,7 +506,7 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     anchors) get zero: the gauge is theirs, the others' covariances are relative to them (module
     docstring). Cost: one sparse Cholesky and the selected inversion over the requested
     vertices' block columns and their elimination-tree ancestors (:func:`selected_inverse`).
-    Raises :class:`posegraph.cholmod.NotPositiveDefiniteError` when H is not positive definite
+    Raises :class:`posegraph.linalg.cholmod.NotPositiveDefiniteError` when H is not positive definite
     at ``poses``.
     """
     vertices = _vertex_indices(graph, vertices)

@@ -16,7 +16,7 @@ Mapping to ``open3d.pipelines.registration.PoseGraph``
   edge, and Open3D's line process prunes uncertain edges that disagree with the current poses —
   on smallGrid3D it drops most loop closures and ends at a cost 170 times the optimum
   (``docs/interop.md``). ``uncertain_loop_closures=True`` marks loop closures (not odometry,
-  :meth:`~posegraph.graph.PoseGraph.odometry_mask`) uncertain, as Open3D's multiway-registration
+  :meth:`~posegraph.model.graph.PoseGraph.odometry_mask`) uncertain, as Open3D's multiway-registration
   tutorial does for loop closures found by registration.
 
 2D graphs (SE(2) poses ``(n, 3, 3)``, information ``(m, 3, 3)`` in ``[v_x, v_y, ω]`` order) are

@@ -10,7 +10,7 @@ same as :mod:`posegraph.lie.sim3`; gtsam's cost is the exact log's, not g2o's fi
 graph read from a g2o Sim(3) file is compared as :data:`~posegraph.lie.group.SIM3`).
 
 Gauge. Our solver holds every ``FIX`` vertex and one anchor per free connected component constant
-and adds nothing to the cost (``posegraph.graph.component_anchors``). gtsam needs the gauge fixed
+and adds nothing to the cost (``posegraph.model.graph.component_anchors``). gtsam needs the gauge fixed
 too, so :func:`run_gtsam` adds a tight prior (σ = :data:`ANCHOR_SIGMA`) on exactly those vertices
 at their initial poses — the usual way gtsam's own examples optimise a g2o file — and reports
 costs of the edges alone, which is the quantity our solver minimises. For a graph without ``FIX``
@@ -171,7 +171,7 @@ def graph_to_gtsam(graph, *, diagonal: bool = False):
 
 
 def prior_factors(graph):
-    """The graph's priors (:mod:`posegraph.priors`) as gtsam factors, keys = vertex ids.
+    """The graph's priors (:mod:`posegraph.model.priors`) as gtsam factors, keys = vertex ids.
 
     Pose priors: ``PriorFactorPose3`` / ``PriorFactorPose2``; one with an offset ``O`` as the prior
     on ``X`` measuring ``Z O⁻¹`` with information ``Ad(O⁻¹)ᵀ Ω Ad(O⁻¹)``, the same cost exactly
@@ -200,7 +200,7 @@ def prior_factors(graph):
 def gauge_priors(graph, poses: np.ndarray | None = None):
     """Tight ``PriorFactorPose3`` (``PriorFactorPose2``) on every ``FIX`` vertex and every component anchor, at ``poses``."""
     gtsam = require_gtsam()
-    from posegraph.graph import component_anchors
+    from posegraph.model.graph import component_anchors
 
     X = graph.poses if poses is None else poses
     held = np.union1d(np.flatnonzero(graph.fixed), component_anchors(graph))
@@ -279,7 +279,7 @@ def run_gtsam(
     """Optimise a pose graph with gtsam's LM or GN, timing each phase.
 
     ``source``: a g2o path (read with ``gtsam.readG2o(path, is3D)``, ``is3D`` False for a 2D file) or
-    a :class:`~posegraph.graph.PoseGraph` (converted with :func:`graph_to_gtsam`). ``graph``: our
+    a :class:`~posegraph.model.graph.PoseGraph` (converted with :func:`graph_to_gtsam`). ``graph``: our
     model of the same file, used for vertex order, ``FIX`` flags, anchors and the dimension (read
     with ``posegraph.io.g2o.read_g2o`` when not given and ``source`` is a path).
 

@@ -60,7 +60,7 @@ def trajectory_figure(
 ):
     """A matplotlib ``Figure`` with one axes showing every graph's trajectory.
 
-    ``graphs``: :class:`~posegraph.graph.PoseGraph` objects; ``labels``: legend entries (default
+    ``graphs``: :class:`~posegraph.model.graph.PoseGraph` objects; ``labels``: legend entries (default
     the graphs' ``source`` or ``graph k``); ``poses``: per graph an ``(n, 4, 4)`` or ``(n, 3, 3)``
     array to draw instead of ``graph.poses`` (or None). 3D axes when any graph is 3D, a top view
     when all are 2D (module docstring), or with ``top_view`` (3D graphs projected on x–y). Axes
@@ -142,8 +142,8 @@ def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_
 
 def prior_positions(graph) -> np.ndarray:
     """``(a + b, r)``: where the priors put their vertices — ``t(Z O⁻¹)`` of each pose prior (the vertex
-    pose it measures), ``z`` of each position prior (:func:`posegraph.priors.prior_poses`); empty without priors."""
-    from posegraph.priors import prior_poses
+    pose it measures), ``z`` of each position prior (:func:`posegraph.model.priors.prior_poses`); empty without priors."""
+    from posegraph.model.priors import prior_poses
 
     r = graph.group.space_dim
     return prior_poses(graph)[1][:, :r, r]

@@ -39,11 +39,11 @@ def _range(values: np.ndarray) -> tuple[float, float]:
 
 
 def graph_info(graph) -> dict:
-    """Facts about ``graph`` (a :class:`~posegraph.graph.PoseGraph`) as a dict.
+    """Facts about ``graph`` (a :class:`~posegraph.model.graph.PoseGraph`) as a dict.
 
     Keys: ``num_vertices, num_edges, num_fixed, num_components, degree_min, degree_max,
     degree_mean, degree_median, num_odometry_edges, num_loop_closures`` (from
-    :func:`posegraph.graph.graph_facts`); ``id_min, id_max, ids_contiguous``; ``information``:
+    :func:`posegraph.model.graph.graph_facts`); ``id_min, id_max, ids_contiguous``; ``information``:
     for the ``rotation`` and ``translation`` diagonal blocks of Ω (at the group's rotation and
     translation axes: 3×3 and 3×3 of SE(3)'s ``[ω; v]``, 1×1 and 2×2 of SE(2)'s ``[v_x, v_y, ω]``)
     the range of their diagonal entries and of their eigenvalues, the range of the eigenvalues of
@@ -54,7 +54,7 @@ def graph_info(graph) -> dict:
     """
     from dataclasses import asdict
 
-    from posegraph.graph import graph_facts
+    from posegraph.model.graph import graph_facts
 
     info = asdict(graph_facts(graph))
     ids = graph.ids
@@ -110,7 +110,7 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
     and ``worst_edges`` (the :data:`WORST_EDGES` largest: ``line`` in the file or None,
     ``from_id``, ``to_id``, ``chi2``).
     """
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
 
     chi2 = edge_chi2(graph, poses, residuals)
     d = graph.information.shape[-1]

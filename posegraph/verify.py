@@ -369,7 +369,7 @@ def _edge_checks(Xi, Xj, Z, family: str, gtsam, group) -> list[Check]:
     its exact ``log``: g2o's first-order Sim(3) error is the cost, not what the Jacobians differentiate)."""
     from dataclasses import replace
 
-    from posegraph.graph import PoseGraph
+    from posegraph.model.graph import PoseGraph
     from posegraph.solve.residuals import edge_jacobians, edge_residuals
 
     group = replace(group, residual_log=None)

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import posegraph
 from datasets.synthetic import sphere
 from posegraph import covariance as cv
-from posegraph.graph import PoseGraph, held_vertices
+from posegraph.model.graph import PoseGraph, held_vertices
 from posegraph.solve.sparsity import analyze_pattern
 
 D = 6
@@ -259,7 +259,7 @@ def random_block_system(rng, p: int, d: int, edges: int):
 
 def factor_in_order(pattern, data, order):
     """CHOLMOD's factor for the vertex order ``order`` (postordered by CHOLMOD): ``(CSCFactor, permutation)``."""
-    from posegraph.cholmod import SparseCholesky, block_permutation
+    from posegraph.linalg.cholmod import SparseCholesky, block_permutation
 
     cholesky = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension,
                               permutation=block_permutation(order, pattern.block_size))
@@ -321,7 +321,7 @@ def test_the_factor_order_is_the_solvers(shared_dataset):
 
 
 def test_not_positive_definite_raises():
-    from posegraph.cholmod import NotPositiveDefiniteError
+    from posegraph.linalg.cholmod import NotPositiveDefiniteError
 
     pattern = analyze_pattern(2, [0], [1], np.zeros(2, dtype=bool), 1)  # [[1, 2], [2, 1]]: indefinite
     data = np.array([1.0, 2.0, 1.0])

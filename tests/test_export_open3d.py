@@ -8,7 +8,7 @@ import pytest
 from tests.optional import import_or_skip
 from scipy.spatial.transform import Rotation
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.lie import se2
 
 o3d = import_or_skip("open3d", "Open3D export")
@@ -148,7 +148,7 @@ def open3d_optimise(pose_graph, reference_node: int) -> np.ndarray:
 def test_open3d_reaches_our_optimum_on_smallgrid3d(shared_dataset):
     """From the file's poses, Open3D's optimiser on the default export reaches our optimum within 1 %;
     with loop closures marked uncertain its line process prunes them and it stays far above it."""
-    from posegraph.graph import component_anchors
+    from posegraph.model.graph import component_anchors
     from posegraph.io.g2o import read_g2o
     from posegraph.solve import optimize
     from posegraph.solve.residuals import cost

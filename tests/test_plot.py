@@ -12,7 +12,7 @@ from matplotlib.colors import to_rgb  # noqa: E402
 from matplotlib.image import imread  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
-from posegraph.graph import PoseGraph  # noqa: E402
+from posegraph.model.graph import PoseGraph  # noqa: E402
 from posegraph.lie import se2  # noqa: E402
 from posegraph.plot import LOOP_CLOSURE_ALPHA, plot_trajectories, trajectory_figure  # noqa: E402
 
@@ -126,7 +126,7 @@ def test_prior_positions_are_drawn_as_crosses_where_the_priors_put_their_vertice
 
     from posegraph.lie.group import SE3
     from posegraph.plot import prior_positions
-    from posegraph.priors import Priors
+    from posegraph.model.priors import Priors
 
     graph = helix_graph()
     offset = SE3.exp(np.array([0.0, 0.0, 0.5, 1.0, 2.0, 3.0]))

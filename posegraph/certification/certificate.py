@@ -32,7 +32,7 @@ import numpy as np
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import SyncProblem, component_problems, objective, sync_problem
 from posegraph.certification.verify import DEFAULT_TOLERANCE, Budget, Verification, data_scale, verify_point
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 
 __all__ = ["Certificate", "certify", "isotropic_graph", "candidate_poses", "poses_to_blocks", "blocks_to_poses"]
 

@@ -52,7 +52,7 @@ from functools import cached_property
 import numpy as np
 
 from posegraph.certification.problem import SyncProblem, data_matrix_blocks, euclidean_gradient
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 from posegraph.solve.linear import make_linear_solver
 from posegraph.solve.sparsity import HessianPattern, analyze_pattern, hessian_values
 

@@ -105,12 +105,12 @@ def run(args) -> int:
 
 
 def _against_priors(args):
-    """``(keys, EST's poses, keys, the poses its priors give)``, one key per prior (:func:`posegraph.priors.prior_poses`)."""
+    """``(keys, EST's poses, keys, the poses its priors give)``, one key per prior (:func:`posegraph.model.priors.prior_poses`)."""
     import numpy as np
 
     from posegraph.errors import InputError
     from posegraph.io.g2o import read_g2o
-    from posegraph.priors import prior_poses
+    from posegraph.model.priors import prior_poses
 
     graph = read_g2o(args.estimate, require_edges=False, repair_information=args.repair_information)
     vertex, poses = prior_poses(graph)

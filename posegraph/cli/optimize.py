@@ -200,7 +200,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
     An H that is not positive definite there stops the command before anything is written.
     """
-    from posegraph.cholmod import NotPositiveDefiniteError
+    from posegraph.linalg.cholmod import NotPositiveDefiniteError
     from posegraph.covariance import marginal_covariances
     from posegraph.errors import OutputError
 

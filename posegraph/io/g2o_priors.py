@@ -1,4 +1,4 @@
-"""g2o's unary edges (priors) and their offset parameters: reading into :class:`~posegraph.priors.Priors`, writing back.
+"""g2o's unary edges (priors) and their offset parameters: reading into :class:`~posegraph.model.priors.Priors`, writing back.
 
 Tags (g2o's ``types_slam3d`` / ``types_slam2d``; fields after the tag):
 
@@ -27,7 +27,7 @@ from posegraph.io.g2o_checks import check_finite, check_information, raise_first
 from posegraph.io.g2o_format import G2O_TO_TANGENT, TANGENT_FROM_UPPER, Record, _entry_of_upper, _information_fields, pose_values
 from posegraph.io.g2o_lines import Lines, parse_records
 from posegraph.lie import so2, so3
-from posegraph.priors import Priors
+from posegraph.model.priors import Priors
 
 PARAMS_TAG = "PARAMS_SE3OFFSET"
 SE3_PRIOR_TAG = "EDGE_SE3_PRIOR"
@@ -120,9 +120,9 @@ def read_priors(groups: dict[str, Lines], space_dim: int, ids: np.ndarray, path:
 
 
 def gauge_note(graph, path: str) -> list[str]:
-    """A warning for the components whose priors leave a rotation free (:mod:`posegraph.priors`), or none."""
-    from posegraph.graph import connected_components
-    from posegraph.priors import underdetermined_components
+    """A warning for the components whose priors leave a rotation free (:mod:`posegraph.model.priors`), or none."""
+    from posegraph.model.graph import connected_components
+    from posegraph.model.priors import underdetermined_components
 
     if graph.priors is None or graph.priors.num_position == 0:
         return []

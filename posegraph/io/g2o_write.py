@@ -15,7 +15,7 @@ import numpy as np
 
 from posegraph.atomic import atomic_path
 from posegraph.errors import OutputError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o_format import (
     FIX_TAG, G2O_TO_TANGENT, PRIMARY_EDGE_TAG, UPPER_COLS, UPPER_COLS_2D, UPPER_ROWS,
     UPPER_ROWS_2D, VERTEX_SE2_TAG, VERTEX_TAG, pose_values,
@@ -36,7 +36,7 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     that reads back to the same double.
 
     Edges read from ``EDGE_SE3:QUAT`` (``EDGE_SE2``) lines and unchanged since
-    (``graph.edge_source``, see :class:`posegraph.graph.EdgeSource`) are written as they were
+    (``graph.edge_source``, see :class:`posegraph.model.graph.EdgeSource`) are written as they were
     read, trailing blanks and comments dropped: their numbers read back to the same edges either way.
     """
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)

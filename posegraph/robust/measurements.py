@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 
 __all__ = ["squared_residuals", "num_priors", "measurement_residuals", "measurement_known", "measurement_dimensions",
            "weighted_priors", "weighted_graph", "known_inlier_mask"]
@@ -64,7 +64,7 @@ def measurement_dimensions(graph: PoseGraph):
 
 def weighted_priors(graph: PoseGraph, weights: np.ndarray) -> PoseGraph:
     """``graph`` with prior ``k``'s information scaled by ``weights[k]`` ``(u,)``, the priors of weight 0 dropped."""
-    from posegraph.priors import Priors
+    from posegraph.model.priors import Priors
 
     priors = graph.priors
     a = priors.num_pose

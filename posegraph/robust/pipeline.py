@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
 from posegraph.robust.measurements import known_inlier_mask, measurement_dimensions, measurement_residuals, num_priors

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.robust.active import ActiveEdgeSolves
 from posegraph.robust.gnc import GncParams, GncResult, run_gnc
 from posegraph.robust.measurements import (

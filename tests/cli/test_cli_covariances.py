@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from posegraph.covariance import marginal_covariances
-from posegraph.graph import held_vertices
+from posegraph.model.graph import held_vertices
 from posegraph.io.g2o import read_g2o
 from tests.cli.conftest import assert_one_error_line, run_cli
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from datasets.synthetic import grid, inject_outliers, random_relative_poses
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.robust.pipeline import optimize_robust
 from posegraph.robust.trust import (
     contradicted_odometry,

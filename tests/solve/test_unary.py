@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph, component_anchors, held_vertices
+from posegraph.model.graph import PoseGraph, component_anchors, held_vertices
 from posegraph.lie import se2, se3
 from posegraph.lie.group import SE2, SE3
-from posegraph.priors import Priors
+from posegraph.model.priors import Priors
 from posegraph.robust.losses import make_loss
 from posegraph.solve.objective import Objective
 from posegraph.solve.optimizer import optimize

@@ -92,7 +92,7 @@ def available_bytes() -> int | None:
 
 FACTOR_MEMORY_SHARE = 0.75
 """A Cholesky factor is taken to fit when the bytes foreseen for it
-(:func:`posegraph.cholmod.block_factor_bytes`, from the vertex pattern: 3.87 GiB on the 200k-pose
+(:func:`posegraph.linalg.cholmod.block_factor_bytes`, from the vertex pattern: 3.87 GiB on the 200k-pose
 sphere, whose scalar analysis foresees 3.37 GiB and whose numeric factorisation grows the process
 by 3.21 GiB) are at most this share of :func:`available_bytes`; the rest is for the arrays beside
 it (H, cvxopt's copy of it, an iteration's per-edge temporaries: 1.9 GiB beside that factor)."""

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from posegraph import cholmod
+from posegraph.linalg import cholmod
 
 pytestmark = pytest.mark.skipif(cholmod.load() is None, reason=f"no CHOLMOD: {cholmod.unavailable_reason()}")
 
@@ -273,7 +273,7 @@ def test_factor_sizes_are_read_only_from_a_factor_of_this_order():
 # dissection, dwarfs the process's other allocations, so the resident peak's growth is the factor's.
 FACTOR_GROWTH = """
     import numpy as np, scipy.sparse as sp
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     def peak_mib():
         return int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1]) / 1024
@@ -300,7 +300,7 @@ def test_factor_bytes_foresee_the_resident_growth_of_the_factorisation():
 
     pytest.importorskip("pymetis", reason="nested dissection needs pymetis")
     child = subprocess.run([sys.executable, "-c", textwrap.dedent(FACTOR_GROWTH)], capture_output=True, text=True,
-                           timeout=300, cwd=Path(__file__).resolve().parent.parent)  # fmt: skip
+                           timeout=300, cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert child.returncode == 0, child.stderr
     foreseen, grown = map(float, child.stdout.split())
     assert grown > 100  # MiB: the factor is what grows

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph, component_anchors, connected_components, graph_facts
+from posegraph.model.graph import PoseGraph, component_anchors, connected_components, graph_facts
 
 
 def make_graph(ids, edges, fixed_ids=()):

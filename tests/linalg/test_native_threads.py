@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph import native_threads
-from posegraph.native_threads import NativeThreads, cholmod_blas_libraries
+from posegraph.linalg import native_threads
+from posegraph.linalg.native_threads import NativeThreads, cholmod_blas_libraries
 
 THREADED = {"user_api": "blas", "filepath": "/venv/site-packages/cvxopt.libs/libopenblas-r0.so", "threading_layer": "pthreads"}
 SERIAL = dict(THREADED, threading_layer="disabled")
@@ -77,7 +77,7 @@ def test_bad_thread_counts_are_refused(bad):
 
 
 def test_cholmod_factorizes_the_same_with_any_thread_setting():
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if cholmod.load() is None:
         pytest.skip(cholmod.unavailable_reason())

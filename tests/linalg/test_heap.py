@@ -1,4 +1,4 @@
-"""posegraph.heap: freed C-heap pages go back to the system."""
+"""posegraph.linalg.heap: freed C-heap pages go back to the system."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from posegraph import heap
+from posegraph.linalg import heap
 
 # In a fresh interpreter (the test process's own heap is whatever the tests before left): ~190 MiB of
 # 64 KiB blocks (below glibc's mmap threshold, as a parser's are), each followed by a small block so
 # that, freed, they cannot merge into the heap's top and be returned by free() itself.
 CHILD = """
     import ctypes, sys
-    from posegraph import heap
+    from posegraph.linalg import heap
 
     def resident_kib():
         return int(next(l for l in open("/proc/self/status") if l.startswith("VmRSS")).split()[1])
@@ -45,7 +45,7 @@ CHILD = """
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")
 def test_freed_heap_pages_are_returned():
     child = subprocess.run([sys.executable, "-c", textwrap.dedent(CHILD)], capture_output=True, text=True, timeout=60,
-                           cwd=Path(__file__).resolve().parent.parent)  # fmt: skip
+                           cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert child.returncode == 0, child.stderr
     ran, returned_kib = child.stdout.split()
     assert ran == "True"
@@ -92,7 +92,7 @@ def test_the_address_space_limit_caps_the_memory_a_factor_may_take():
     import sys
 
     cap = 3 << 30
-    code = ("from posegraph import heap; size, what = heap.memory_limit(); print(size); print(what); "
+    code = ("from posegraph.linalg import heap; size, what = heap.memory_limit(); print(size); print(what); "
             "print(heap.factor_exceeds_memory(int(2.5 * 2**30)))")
 
     def limited():
@@ -101,7 +101,7 @@ def test_the_address_space_limit_caps_the_memory_a_factor_may_take():
         resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
 
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          preexec_fn=limited, cwd=str(__import__("pathlib").Path(__file__).resolve().parents[1]))
+                          preexec_fn=limited, cwd=str(__import__("pathlib").Path(__file__).resolve().parents[2]))
     size, what, reason = proc.stdout.splitlines()
     assert proc.returncode == 0, proc.stderr
     if heap.available_bytes() is not None and heap.available_bytes() < int(size):  # pragma: no cover - a small machine

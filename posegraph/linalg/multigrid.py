@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 
 __all__ = ["MultigridCG", "available", "pose_null_space", "DEFAULT_TOLERANCE", "INSTALL_HINT"]
 
@@ -68,11 +68,11 @@ def available() -> bool:
 
 def factorisation_fits(block_indptr, block_indices, num_blocks: int, block: int, ordering: str = "auto") -> bool:
     """Whether CHOLMOD's factor of a matrix of ``block``×``block`` blocks on this vertex pattern fits
-    in memory (:func:`posegraph.cholmod.block_factor_bytes`, :func:`posegraph.heap.factor_exceeds_memory`).
+    in memory (:func:`posegraph.linalg.cholmod.block_factor_bytes`, :func:`posegraph.linalg.heap.factor_exceeds_memory`).
     When it does not: a warning that conjugate gradients solve instead, saying both sizes, or
     without pyamg an ``ImportError`` with the sizes, the install hint and how to factorise anyway."""
-    from posegraph import cholmod
-    from posegraph.heap import factor_exceeds_memory
+    from posegraph.linalg import cholmod
+    from posegraph.linalg.heap import factor_exceeds_memory
 
     reason = factor_exceeds_memory(cholmod.block_factor_bytes(block_indptr, block_indices, num_blocks, block, ordering))
     if reason is None:

@@ -1,7 +1,7 @@
 """Unary edges of a pose graph: pose priors and position priors, stored as small arrays.
 
 A prior is an edge with one vertex. Two kinds, each its own set of arrays so that the binary edges
-(:class:`posegraph.graph.PoseGraph`) and their solver path stay as they are:
+(:class:`posegraph.model.graph.PoseGraph`) and their solver path stay as they are:
 
 * a **pose prior** on vertex ``k`` measures ``Z ≈ X_k · O`` (``O`` an offset, the identity unless
   g2o's ``PARAMS_SE3OFFSET`` says otherwise); residual ``e = Log(Z⁻¹ X_k O)`` in the group's
@@ -17,7 +17,7 @@ The cost of the graph is ``½ Σ eᵀΩe`` over binary and unary edges alike.
 Gauge: priors tie a connected component to the world. A component *anchored by priors* — one with a
 pose prior, or with position priors whose measured points span at least a line (3D: not all
 collinear; 2D: not all equal), which leaves no rigid motion free — holds no vertex
-(:func:`posegraph.graph.held_vertices`). A component no prior reaches keeps its anchor. A component
+(:func:`posegraph.model.graph.held_vertices`). A component no prior reaches keeps its anchor. A component
 whose position priors leave a rotation free (one point in 3D or 2D, collinear points in 3D) holds
 no vertex either: its remaining gauge (rotation about the points) is left to the damping of
 Levenberg-Marquardt, so that the optimum is the cost's own.

@@ -1,4 +1,4 @@
-"""posegraph.priors.prior_poses: the pose each prior gives its vertex, with a non-identity offset.
+"""posegraph.model.priors.prior_poses: the pose each prior gives its vertex, with a non-identity offset.
 
 g2o's ``EDGE_SE3_PRIOR`` measures ``Z ≈ X·O`` (its error is ``Log(Z⁻¹·X·O)``, ``O`` the
 ``PARAMS_SE3OFFSET``: a sensor mounted off the body), so the pose it gives is ``X = Z·O⁻¹``; with
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.io.g2o import read_g2o
-from posegraph.priors import prior_poses
+from posegraph.model.priors import prior_poses
 from tests.io.test_g2o_priors import CHAIN, INFO6, OFFSET
 from tests.io.test_g2o_read import rotation_from_xyzw
 from tests.optional import import_or_skip

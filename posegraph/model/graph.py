@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
-from posegraph.priors import Priors, anchored_components
+from posegraph.model.priors import Priors, anchored_components
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "vertex_ranks", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
@@ -105,7 +105,7 @@ class PoseGraph:
     edge_lines: np.ndarray | None = field(default=None, repr=False)
     """``(m,)`` int64 — the 1-based line of the file each edge was read from (for messages); None if unknown."""
     priors: Priors | None = field(default=None, repr=False)
-    """Unary edges (pose and position priors, :class:`posegraph.priors.Priors`), or None: none."""
+    """Unary edges (pose and position priors, :class:`posegraph.model.priors.Priors`), or None: none."""
     kept_lines: tuple = field(default=(), repr=False)
     """Lines of the file that are not vertices or edges of the graph but belong in its output, each
     ``"TAG rest"``, written back as read: TORO's ``EQUIV`` lines and the vertex and edge lines they
@@ -230,7 +230,7 @@ def component_anchors(graph: PoseGraph) -> np.ndarray:
     examples and g2o anchor the first pose; for a file in id order that is the
     same vertex). Components with a ``FIX`` vertex need no anchor: the fixed
     vertices already remove the gauge freedom; nor do components a prior reaches
-    (``graph.priors``, see :mod:`posegraph.priors`). Returns the vertex indices,
+    (``graph.priors``, see :mod:`posegraph.model.priors`). Returns the vertex indices,
     sorted.
     """
     if graph.num_vertices == 0:

@@ -2,7 +2,7 @@
 
 CHOLMOD's supernodal factorisation spends most of its time in dense BLAS/LAPACK kernels
 (``dsyrk``, ``dgemm``, ``dtrsm``, ``dpotrf``). The cvxopt wheel, which brings CHOLMOD here
-(:mod:`posegraph.cholmod`), bundles its own OpenBLAS — a library apart from numpy's and scipy's —
+(:mod:`posegraph.linalg.cholmod`), bundles its own OpenBLAS — a library apart from numpy's and scipy's —
 and its CHOLMOD is built without OpenMP. Which OpenBLAS build a wheel bundles differs by
 platform: the Linux x86_64 wheel of cvxopt 1.3 ships a single-threaded one (``threadpoolctl``
 reports its threading layer as ``"disabled"``), where there is nothing to set; a threaded build

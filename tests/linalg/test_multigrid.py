@@ -1,4 +1,4 @@
-"""Multigrid-preconditioned CG (posegraph.multigrid): the near-null space, solves, failures."""
+"""Multigrid-preconditioned CG (posegraph.linalg.multigrid): the near-null space, solves, failures."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import scipy.sparse as sp
 
 pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
 
-from posegraph import multigrid  # noqa: E402
-from posegraph.cholmod import NotPositiveDefiniteError  # noqa: E402
+from posegraph.linalg import multigrid  # noqa: E402
+from posegraph.linalg.cholmod import NotPositiveDefiniteError  # noqa: E402
 from posegraph.lie.group import SE2, SE3  # noqa: E402
 from posegraph.solve.linearize import linearize  # noqa: E402
 from posegraph.solve.sparsity import analyze_pattern, hessian_values, symmetric_block_values, symmetric_blocks  # noqa: E402

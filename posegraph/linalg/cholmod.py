@@ -157,11 +157,11 @@ class SparseCholesky:
     from :func:`block_permutation`), by that order, postordered. Then, any number of times,
     :meth:`factorize` with new ``data`` ``(nnz,)`` on the same pattern, :meth:`solve`, and
     :meth:`factor` for L itself. ``threads`` caps the BLAS under CHOLMOD during its work
-    (:class:`posegraph.native_threads.NativeThreads`).
+    (:class:`posegraph.linalg.native_threads.NativeThreads`).
     """
 
     def __init__(self, indptr, indices, n: int, ordering: str = "amd", threads: int | None = 1, *, permutation=None):
-        from posegraph.native_threads import NativeThreads
+        from posegraph.linalg.native_threads import NativeThreads
 
         self._cholmod = _require()
         if ordering not in ORDERINGS:
