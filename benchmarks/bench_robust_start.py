@@ -25,7 +25,7 @@ SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "datasets"
 
 
 def _row(name: str, seconds: float, poses, clean, reference, extra: str = "") -> str:
-    from posegraph.evaluate import absolute_trajectory_error
+    from posegraph.analysis.evaluate import absolute_trajectory_error
     from posegraph.solve.residuals import cost
 
     translation, rotation, _ = absolute_trajectory_error(poses, reference)

@@ -27,7 +27,7 @@ _ONE_AT_A_TIME = threading.Lock()
 def optimize_file(job: FileJob) -> dict:
     """Run ``job`` as ``posegraph optimize`` in this process, write its log; its summary row
     (:func:`posegraph.batch.rows.file_row`)."""
-    from posegraph.atomic import write_text_atomic
+    from posegraph.io.atomic import write_text_atomic
     from posegraph.batch.rows import file_row
 
     from posegraph.cli.startup import import_solver_modules

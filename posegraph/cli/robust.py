@@ -166,7 +166,7 @@ def warn_about_known_inliers(graph, known: dict | None) -> None:
     """Warnings naming the known inliers GNC released, or (strict, or still failing) kept though they
     fail the inlier test, and one when their χ² per dof is far above 1."""
     from posegraph.cli.common import warn
-    from posegraph.report import CHI2_PER_DOF_WARNING
+    from posegraph.analysis.report import CHI2_PER_DOF_WARNING
 
     if known is None:
         return

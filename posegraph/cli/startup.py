@@ -180,7 +180,7 @@ class stop_signals_interrupt:
     Their default action ends the process at once, leaving the temporary files of the outputs
     being written (even complete ones) and, between two renames, a new result beside an old
     report; raised as an exception, they unwind as Ctrl-C does: temporary files deleted, renames
-    held back until the last one (:class:`posegraph.atomic.StagedOutputs`), exit status 128 +
+    held back until the last one (:class:`posegraph.io.atomic.StagedOutputs`), exit status 128 +
     the signal. Only signals at their default action are taken: one ignored (``nohup`` ignores
     SIGHUP) stays ignored, a handler an embedding program set stays its own. Only in the main
     thread, where Python handles signals; the previous handlers are back after the block.

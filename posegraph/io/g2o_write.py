@@ -13,7 +13,7 @@ import os
 
 import numpy as np
 
-from posegraph.atomic import atomic_path
+from posegraph.io.atomic import atomic_path
 from posegraph.errors import OutputError
 from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o_format import (

@@ -229,7 +229,7 @@ def test_rotation_weights_are_the_mean_rotational_information_in_the_chordal_sta
 def _gtsam_lm_cost(graph, start) -> float:
     """gtsam's LM from ``start`` (gauge priors on our held vertices), tolerances 1e-14: a reference optimum."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import gtsam_reference_cost
+    from posegraph.crosscheck.gtsam_bridge import gtsam_reference_cost
 
     return gtsam_reference_cost(graph, start)
 
@@ -333,7 +333,7 @@ def _gtsam_initialize(factors, anchor: int, anchor_pose: np.ndarray):
 def _gtsam_initialize_cost(graph):
     """gtsam's start cost (without the prior) and poses for one of our graphs."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import graph_to_gtsam, values_to_poses
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, values_to_poses
 
     factors = graph_to_gtsam(graph)
     anchor = int(component_anchors(graph)[0])

@@ -172,7 +172,7 @@ def _robust_gtsam_graph(graph, estimator):
 @pytest.mark.parametrize("dataset", ["tinyGrid3D", "smallGrid3D"])
 @pytest.mark.parametrize("name", LOSS_NAMES)
 def test_robust_cost_equals_gtsam_graph_error(shared_dataset, dataset, name):
-    from posegraph.gtsam_bridge import poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import poses_to_values
     from posegraph.io.g2o import read_g2o
     from posegraph.solve.residuals import edge_residuals
 

@@ -208,7 +208,7 @@ def test_records_are_consistent_and_lm_cost_never_increases():
 @pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
 @pytest.mark.parametrize("max_iterations", [1, 100])
 def test_final_residuals_are_the_residuals_at_the_returned_poses(group, max_iterations):
-    from posegraph.report import chi2_summary
+    from posegraph.analysis.report import chi2_summary
     from posegraph.solve.residuals import edge_residuals
 
     graph = synthetic_graph(6, noise=0.1, group=group)

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from posegraph.errors import InputError
 from posegraph.lie import se2, so2
-from posegraph.evaluate import (
+from posegraph.analysis.evaluate import (
     absolute_trajectory_error,
     align_rigid,
     chain_odometry,
@@ -287,7 +287,7 @@ def test_chain_odometry_of_2d_steps():
 
 
 def test_sim3_trajectories_align_by_a_similarity_with_each_poses_scale_applied():
-    from posegraph.evaluate import align_rigid, evaluate, is_similarity_trajectory
+    from posegraph.analysis.evaluate import align_rigid, evaluate, is_similarity_trajectory
     from posegraph.lie import se3, sim3
 
     rng = np.random.default_rng(11)

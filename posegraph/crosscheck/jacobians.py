@@ -273,7 +273,7 @@ def _gtsam_matrix(element) -> np.ndarray:
 def _gtsam_between(gtsam, Xi, Xj, Z, group):
     """Residuals ``(m, d)`` and Jacobians ``(m, d, d)`` ×2 of gtsam's BetweenFactorPose3 (Pose2,
     Similarity3 for those groups), unit noise."""
-    from posegraph.gtsam_bridge import _gtsam_pose, _gtsam_similarity
+    from posegraph.crosscheck.gtsam_bridge import _gtsam_pose, _gtsam_similarity
 
     d = group.dim
     between = {3: gtsam.BetweenFactorPose2, 6: gtsam.BetweenFactorPose3, 7: gtsam.BetweenFactorSimilarity3}[d]
@@ -440,7 +440,7 @@ def verify_all(graph=None, *, samples: int = 500, seed: int = 0, use_gtsam: bool
     """
     gtsam = None
     if use_gtsam:
-        from posegraph.gtsam_bridge import require_gtsam
+        from posegraph.crosscheck.gtsam_bridge import require_gtsam
 
         gtsam = require_gtsam()
     rng = np.random.default_rng(seed)
@@ -467,7 +467,7 @@ def verify_all(graph=None, *, samples: int = 500, seed: int = 0, use_gtsam: bool
 
 def _prior_checks(graph, family: str, gtsam) -> list[Check]:
     """The priors' Jacobians against central differences, their cost terms against gtsam's factors
-    (``PriorFactorPose3/2``, ``GPSFactor``, ``PoseTranslationPrior2D``: :func:`posegraph.gtsam_bridge.prior_factors`)."""
+    (``PriorFactorPose3/2``, ``GPSFactor``, ``PoseTranslationPrior2D``: :func:`posegraph.crosscheck.gtsam_bridge.prior_factors`)."""
     from posegraph.solve.unary import prior_errors, prior_jacobians, prior_squared_norms
 
     poses, priors, group = graph.poses, graph.priors, graph.group
@@ -487,7 +487,7 @@ def _prior_checks(graph, family: str, gtsam) -> list[Check]:
             checks.append(Check(f"{kind} prior Jacobian ∂e/∂δ", "finite differences", family, count,
                                 _scaled_difference(jacobian, fd), FINITE_DIFFERENCE_TOLERANCE))
     if gtsam is not None:
-        from posegraph.gtsam_bridge import poses_to_values, prior_factors
+        from posegraph.crosscheck.gtsam_bridge import poses_to_values, prior_factors
 
         factors, values = prior_factors(graph), poses_to_values(graph.ids, poses)
         theirs = np.array([2.0 * factors.at(k).error(values) for k in range(factors.size())])

@@ -391,7 +391,7 @@ def read_trajectory(path, *, repair_information: bool = False) -> tuple[np.ndarr
     else:
         return graph.ids, graph.poses
 
-    from posegraph.gtsam_bridge import require_gtsam
+    from posegraph.crosscheck.gtsam_bridge import require_gtsam
 
     try:
         gtsam = require_gtsam()

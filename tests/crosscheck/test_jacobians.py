@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph.verify import (
+from posegraph.crosscheck.jacobians import (
     CLOSED_FORM_TOLERANCE,
     FINITE_DIFFERENCE_TOLERANCE,
     GTSAM_NEAR_PI_TOLERANCE,

@@ -1,4 +1,4 @@
-"""posegraph.atomic: new files beside the destination, and all-or-nothing writes."""
+"""posegraph.io.atomic: new files beside the destination, and all-or-nothing writes."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from posegraph import atomic
+from posegraph.io import atomic
 
 
 def test_a_new_file_gets_the_mode_open_gives_and_the_name_asked_for(tmp_path):

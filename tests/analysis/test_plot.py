@@ -14,7 +14,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
 from posegraph.model.graph import PoseGraph  # noqa: E402
 from posegraph.lie import se2  # noqa: E402
-from posegraph.plot import LOOP_CLOSURE_ALPHA, plot_trajectories, trajectory_figure  # noqa: E402
+from posegraph.analysis.plot import LOOP_CLOSURE_ALPHA, plot_trajectories, trajectory_figure  # noqa: E402
 
 
 def helix_graph(n=40, shift=0.0, shuffle_seed=None):
@@ -125,7 +125,7 @@ def test_prior_positions_are_drawn_as_crosses_where_the_priors_put_their_vertice
     from dataclasses import replace
 
     from posegraph.lie.group import SE3
-    from posegraph.plot import prior_positions
+    from posegraph.analysis.plot import prior_positions
     from posegraph.model.priors import Priors
 
     graph = helix_graph()

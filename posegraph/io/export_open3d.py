@@ -32,7 +32,7 @@ import os
 
 import numpy as np
 
-from posegraph.atomic import atomic_path
+from posegraph.io.atomic import atomic_path
 from posegraph.lie import se2
 
 __all__ = [

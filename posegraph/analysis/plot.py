@@ -14,7 +14,7 @@ optimised result.
 view of the x–y plane with equal scales. When 2D and 3D graphs are overlaid, the 2D ones are
 drawn at ``z = 0`` on the 3D axes (:func:`posegraph.lie.se2.to_se3`). ``top_view`` draws 3D
 graphs from above (x–y); uncertainty ellipses (:func:`draw_uncertainty_ellipses`, from
-:func:`posegraph.covariance.marginal_covariances`) are drawn on such a top view.
+:func:`posegraph.analysis.covariance.marginal_covariances`) are drawn on such a top view.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from posegraph.atomic import atomic_path
+from posegraph.io.atomic import atomic_path
 from posegraph.lie.group import embed_in_se3
 
 __all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances",

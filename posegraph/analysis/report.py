@@ -7,7 +7,7 @@
 * :func:`optimize_report` — what ``posegraph optimize --report`` writes: the run's settings,
   costs, χ², termination, per-phase seconds and one record per iteration.
 
-Every value is a JSON type (int, float, str, bool, list, dict); :func:`posegraph.atomic.write_json_atomic`
+Every value is a JSON type (int, float, str, bool, list, dict); :func:`posegraph.io.atomic.write_json_atomic`
 writes them (non-finite floats become ``null``).
 """
 

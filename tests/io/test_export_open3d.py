@@ -13,7 +13,7 @@ from posegraph.lie import se2
 
 o3d = import_or_skip("open3d", "Open3D export")
 
-from posegraph.export_open3d import (  # noqa: E402
+from posegraph.io.export_open3d import (  # noqa: E402
     to_open3d_pose_graph,
     write_open3d_pose_graph,
     write_trajectory_ply,

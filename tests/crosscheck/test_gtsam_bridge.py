@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 gtsam = pytest.importorskip("gtsam", reason="the bridge needs gtsam (pip install 'posegraph[gtsam]')")
 
-from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values, run_gtsam, values_to_poses  # noqa: E402
+from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values, run_gtsam, values_to_poses  # noqa: E402
 
 
 def test_values_round_trip_by_id_in_any_order():

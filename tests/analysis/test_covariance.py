@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import posegraph
 from datasets.synthetic import sphere
-from posegraph import covariance as cv
+from posegraph.analysis import covariance as cv
 from posegraph.model.graph import PoseGraph, held_vertices
 from posegraph.solve.sparsity import analyze_pattern
 
@@ -114,7 +114,7 @@ def test_bad_vertex_indices_raise():
 def gtsam_marginals(graph, poses, sigma: float = 1e-6) -> np.ndarray:
     """gtsam's marginals with a ``PriorFactorPose3`` of σ = ``sigma`` on each held vertex."""
     gtsam = pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values
 
     factors = graph_to_gtsam(graph)
     noise = gtsam.noiseModel.Isotropic.Sigma(D, sigma)
