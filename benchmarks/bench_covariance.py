@@ -5,7 +5,7 @@
 
 ``compare``: per dataset, one process reads the file and optimises it (``posegraph.optimize``);
 at those poses it then alternates, ``repeats`` rounds after one warm-up round of each,
-:func:`posegraph.covariance.marginal_covariances` for all vertices and gtsam's
+:func:`posegraph.analysis.covariance.marginal_covariances` for all vertices and gtsam's
 ``Marginals(graph + σ = 1e-6 priors on the held vertices, values)`` followed by
 ``marginalCovariance`` for every key — the order of the two swapped every round, so that a slow
 spell of the shared machine hits both. Reports the median seconds of each, their ratio, and the
@@ -42,7 +42,7 @@ def gtsam_all_marginals(graph, poses) -> np.ndarray:
     """``(n, 6, 6)`` from ``gtsam.Marginals`` with tight priors on the held vertices (what is timed)."""
     import gtsam
 
-    from posegraph.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values
 
     factors = graph_to_gtsam(graph)
     factors.push_back(gauge_priors(graph, poses))
@@ -53,8 +53,8 @@ def gtsam_all_marginals(graph, poses) -> np.ndarray:
 def compare(name: str, repeats: int) -> dict:
     """Side-by-side timing and agreement on one shared dataset."""
     import posegraph
-    from posegraph.covariance import marginal_covariances
-    from posegraph.graph import held_vertices
+    from posegraph.analysis.covariance import marginal_covariances
+    from posegraph.model.graph import held_vertices
 
     graph = posegraph.read_g2o(SHARED_DATASETS / f"{name}.g2o")
     poses = posegraph.optimize(graph).poses
@@ -99,7 +99,7 @@ def routes(name: str, chunks: int = 3) -> dict:
     from cvxopt import cholmod, matrix, spmatrix
 
     import posegraph
-    from posegraph import covariance as cv
+    from posegraph.analysis import covariance as cv
 
     graph = posegraph.read_g2o(SHARED_DATASETS / f"{name}.g2o")
     poses = posegraph.optimize(graph).poses
@@ -158,8 +158,8 @@ def worker(shape: str, size: int) -> dict:
     from dataclasses import replace
 
     from datasets.synthetic import generate
-    from posegraph import covariance as cv
-    from posegraph.cholmod import auto_ordering
+    from posegraph.analysis import covariance as cv
+    from posegraph.linalg.cholmod import auto_ordering
 
     dataset = generate(shape, size, seed=0)
     graph, poses = dataset.graph, dataset.ground_truth

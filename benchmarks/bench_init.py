@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from posegraph.errors import InputError, InputWarning
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init import (
     chordal_initialization,
     chordal_rotations,
@@ -160,7 +160,7 @@ def _print_solves(path: Path, graph, starts: dict) -> None:
     params = SolverParams(method="lm")
     starts_to_solve = {"chordal": starts["chordal"]}
     if "gtsam InitializePose3" in starts:
-        from posegraph.gtsam_bridge import values_to_poses
+        from posegraph.crosscheck.gtsam_bridge import values_to_poses
 
         starts_to_solve["gtsam InitializePose3"] = values_to_poses(starts["gtsam InitializePose3"], graph.ids)
     for name, start in starts_to_solve.items():

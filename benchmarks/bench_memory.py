@@ -21,7 +21,7 @@ alive at the first iteration (tracemalloc; CHOLMOD's factor is the rest).
 ``pcg``: conjugate gradients instead of the factorisation, which is what fills memory on a sphere:
 iterations and seconds to solve the first Gauss-Newton system at the chordal start to a relative
 residual of 1e-4 and 1e-8 with a block-Jacobi preconditioner and with the multigrid cycle of
-``--linear-solver pcg`` (:mod:`posegraph.multigrid`), its near-null space the global motions or
+``--linear-solver pcg`` (:mod:`posegraph.linalg.multigrid`), its near-null space the global motions or
 identity blocks.
 
 ``run``: ``python cli.py optimize IN -o OUT --report R.json -q [--linear-solver S]`` under ``/usr/bin/time -v``:
@@ -116,7 +116,7 @@ def pcg(path: Path) -> None:
     import numpy as np
     import scipy.sparse.linalg as sla
 
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
     from posegraph.init.chordal import chordal_initialization
     from posegraph.io.g2o import read_g2o
     from posegraph.solve.linearize import linearize

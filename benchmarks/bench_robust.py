@@ -104,7 +104,7 @@ def run_gtsam(path: Path, out: Path, cap: float, reuse: bool):
 
 
 def _metrics(found, truth, poses, clean, reference, optimum) -> dict:
-    from posegraph.evaluate import absolute_trajectory_error
+    from posegraph.analysis.evaluate import absolute_trajectory_error
     from posegraph.solve.residuals import cost
 
     hits = len(np.intersect1d(found, truth))

@@ -25,7 +25,7 @@ SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "datasets"
 
 
 def _row(name: str, seconds: float, poses, clean, reference, extra: str = "") -> str:
-    from posegraph.evaluate import absolute_trajectory_error
+    from posegraph.analysis.evaluate import absolute_trajectory_error
     from posegraph.solve.residuals import cost
 
     translation, rotation, _ = absolute_trajectory_error(poses, reference)
@@ -46,6 +46,7 @@ def run(path: Path, fraction: float, seed: int, log=print) -> None:
     from posegraph.init import initialize
     from posegraph.io.g2o import read_g2o
     from posegraph.robust import starts
+    from posegraph.robust.measurements import weighted_graph
     from posegraph.solve import optimize
 
     clean = read_g2o(path)
@@ -72,7 +73,7 @@ def run(path: Path, fraction: float, seed: int, log=print) -> None:
     rejected = ~robust.inliers
     verdict = f"{rejected.sum()} ({np.count_nonzero(rejected & outlier)} true, {np.count_nonzero(rejected & ~outlier)} false); {robust.iterations} GNC iterations"
     log(_row("robust chordal (GNC-TLS over chordal)", seconds, robust.poses, clean, reference, verdict))
-    final, more = _timed(lambda: optimize(starts.weighted_graph(graph, np.round(robust.weights)), initial=robust.poses).poses)
+    final, more = _timed(lambda: optimize(weighted_graph(graph, np.round(robust.weights)), initial=robust.poses).poses)
     log(_row("robust chordal, then LM on the weighted graph", seconds + more, final, clean, reference, "same weights"))
 
 

@@ -100,7 +100,7 @@ def run_gtsam(path: Path) -> dict:
     """gtsam LM on BetweenFactorSimilarity3 from posegraph's chordal start, timed from the factor graph's construction."""
     import gtsam
 
-    from posegraph.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values, values_to_poses
+    from posegraph.crosscheck.gtsam_bridge import gauge_priors, graph_to_gtsam, poses_to_values, values_to_poses
     from posegraph.init import initialize
     from posegraph.io.g2o import read_g2o
 
@@ -198,7 +198,7 @@ def se3_graph(graph):
 
 def trajectories(files: dict) -> dict:
     """Truth, drifted start, SE(3)-optimised and Sim(3)-optimised poses, and the ATE of each (similarity-aligned)."""
-    from posegraph.evaluate import evaluate
+    from posegraph.analysis.evaluate import evaluate
     from posegraph.io.g2o import read_g2o
     from posegraph.lie.group import embed_in_se3
     from posegraph.solve import SolverParams, optimize

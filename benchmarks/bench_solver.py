@@ -39,7 +39,7 @@ from posegraph.io.g2o import read_g2o  # noqa: E402
 from posegraph.solve import SolverParams, optimize  # noqa: E402
 from posegraph.solve.linear import CholmodSolver, ScipySolver, cholmod_available  # noqa: E402
 from posegraph.solve.linearize import linearize  # noqa: E402
-from posegraph.graph import held_vertices  # noqa: E402
+from posegraph.model.graph import held_vertices  # noqa: E402
 from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values  # noqa: E402
 
 DATASETS = ROOT.parent / "shared" / "datasets"

@@ -553,7 +553,7 @@ try:
     out["numpy_blas"] = f"{blas.get('name')} {blas.get('version')}"
 except Exception:
     out["numpy_blas"] = None
-from posegraph import cholmod
+from posegraph.linalg import cholmod
 out["cholmod"] = "cvxopt" if cholmod.load() is not None else f"unavailable: {cholmod.unavailable_reason()}"
 if cholmod.load() is not None:
     import threadpoolctl

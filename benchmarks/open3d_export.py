@@ -1,7 +1,7 @@
 """``python -m benchmarks.open3d_export``: Open3D's optimiser on our export, edges certain vs uncertain.
 
 For each dataset (default: three 3D shared datasets on which Open3D finishes in seconds), the graph is exported
-from the file's poses (:func:`posegraph.export_open3d.to_open3d_pose_graph`) once with every edge
+from the file's poses (:func:`posegraph.io.export_open3d.to_open3d_pose_graph`) once with every edge
 certain (the default) and once with loop closures uncertain (``--uncertain-loop-closures``), and
 Open3D's ``global_optimization`` (Levenberg-Marquardt, its default criteria, the tutorial's
 options, reference node = our gauge anchor) is run on each. Printed: our cost ½ Σ eᵀΩe at the
@@ -39,8 +39,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.open3d_export", description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="*", default=list(DEFAULT), help="names in ../shared/datasets or paths")
     args = parser.parse_args(argv)
-    from posegraph.export_open3d import require_open3d, to_open3d_pose_graph
-    from posegraph.graph import component_anchors
+    from posegraph.io.export_open3d import require_open3d, to_open3d_pose_graph
+    from posegraph.model.graph import component_anchors
     from posegraph.io.g2o import read_g2o
     from posegraph.solve import optimize
     from posegraph.solve.residuals import cost

@@ -149,9 +149,9 @@ def fill_in(graph) -> dict:
     estimates ``nnz_L_scalar`` = d²·``nnz_L`` and ``flops_scalar`` = d³·``flops`` (d = 6 for SE(3),
     3 for SE(2): the block size); plus
     ``nnz_H`` (lower triangle, vertex level) of the matrix itself. ``"metis"`` and ``"nesdis"``
-    are both METIS nested dissection (pymetis) in :mod:`posegraph.cholmod`.
+    are both METIS nested dissection (pymetis) in :mod:`posegraph.linalg.cholmod`.
     """
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     n = graph.num_vertices
     i, j = graph.edge_from, graph.edge_to

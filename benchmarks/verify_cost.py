@@ -6,8 +6,8 @@ For each file (the graphs of ``datasets/prior_graphs.py``, gtsam's ``w100_30.g2o
 ``w10000.graph``…): ``cli.py optimize FILE`` in a fresh process (its ``--report`` gives the final
 cost), then gtsam's ``LevenbergMarquardtOptimizer`` on the same factors as posegraph read them —
 ``BetweenFactorPose3/2`` per edge and, per prior, ``PriorFactorPose3/2`` / ``GPSFactor`` /
-``PoseTranslationPrior2D`` (:func:`posegraph.gtsam_bridge.graph_to_gtsam`); the gauge held by the
-priors, or else by tight priors on posegraph's anchors (:func:`posegraph.gtsam_bridge.gauge_priors`,
+``PoseTranslationPrior2D`` (:func:`posegraph.crosscheck.gtsam_bridge.graph_to_gtsam`); the gauge held by the
+priors, or else by tight priors on posegraph's anchors (:func:`posegraph.crosscheck.gtsam_bridge.gauge_priors`,
 left out of the cost) — from three starts (the file's poses, posegraph's chordal start, posegraph's
 result), tolerances 1e-14; gtsam's best cost is the lowest. Printed per file: both costs and their
 relative gap (the check: posegraph's cost is at most gtsam's best · (1 + 1e-6)) and, with priors,
@@ -52,9 +52,9 @@ def gtsam_best_cost(graph, starts: dict) -> dict:
     """``{start name: gtsam's LM cost from it}`` on the graph's factors (priors included, no gauge prior)."""
     import gtsam
 
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values
 
-    from posegraph.gtsam_bridge import gauge_priors
+    from posegraph.crosscheck.gtsam_bridge import gauge_priors
 
     factors = graph_to_gtsam(graph)
     params = gtsam.LevenbergMarquardtParams()
@@ -76,7 +76,7 @@ def gtsam_own_reading_cost(path: str, graph, start) -> float | None:
     it skips; ``EQUIV`` merges; TORO's order, which it refuses)."""
     import gtsam
 
-    from posegraph.gtsam_bridge import gauge_priors, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import gauge_priors, poses_to_values
 
     if graph.priors is not None or graph.kept_lines:
         return None

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.lie.group import SE2, SE3
 
 __all__ = ["lattice", "ring_with_wrong_closure", "ISSUE_CASES"]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.lie import sim3
 
 __all__ = ["g2o_similarity", "lm_optimizer", "g2opy_optimizer", "g2o_chi2", "write_with_g2opy", "write_classic", "classic_path", "main"]

@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, vertex_ranks
+from posegraph.model.graph import PoseGraph, vertex_ranks
 from posegraph.lie import se2, se3, so2, so3
 from posegraph.lie.group import SE2, SE3, SIM3_G2O, LieGroup
 
@@ -943,7 +943,7 @@ def write_injected(path: str | Path, graph: PoseGraph, indices: np.ndarray, sour
     """Write a graph from :func:`inject_outliers` to ``path`` and its outlier indices to
     :func:`outliers_path` (both or neither); ``source``, the file it was read from, is never
     overwritten. Returns both paths."""
-    from posegraph.atomic import StagedOutputs
+    from posegraph.io.atomic import StagedOutputs
     from posegraph.errors import OutputError
     from posegraph.io.g2o import write_g2o
 
@@ -963,7 +963,7 @@ def write_dataset(path: str | Path, dataset: SyntheticDataset, groundtruth: str 
     """Write the noisy graph to ``path`` and the same graph with its vertices at the ground truth
     to ``groundtruth`` (default :func:`groundtruth_path`); when the graph has outliers, their
     indices to :func:`outliers_path`. Returns the first two paths."""
-    from posegraph.atomic import StagedOutputs
+    from posegraph.io.atomic import StagedOutputs
     from posegraph.errors import OutputError
     from posegraph.io.g2o import write_g2o
 

@@ -23,9 +23,9 @@ __version__ = "0.1.0"
 
 # public name -> module that defines it
 _LAZY = {
-    "PoseGraph": "posegraph.graph",
-    "Priors": "posegraph.priors",
-    "graph_facts": "posegraph.graph",
+    "PoseGraph": "posegraph.model.graph",
+    "Priors": "posegraph.model.priors",
+    "graph_facts": "posegraph.model.graph",
     "read_g2o": "posegraph.io.g2o",
     "write_g2o": "posegraph.io.g2o",
     "cost": "posegraph.solve.residuals",
@@ -39,8 +39,8 @@ _LAZY = {
     "GncParams": "posegraph.robust.gnc",
     "make_loss": "posegraph.robust.losses",
     "InputError": "posegraph.errors",
-    "marginal_covariances": "posegraph.covariance",
-    "joint_covariance": "posegraph.covariance",
+    "marginal_covariances": "posegraph.analysis.covariance",
+    "joint_covariance": "posegraph.analysis.covariance",
     "optimize_many": "posegraph.batch.many",
     "certify": "posegraph.certification.certificate",
     "Certificate": "posegraph.certification.certificate",

@@ -12,7 +12,7 @@
 * ``gtsam_example_file(name)`` — a fixture returning a function: the path of a
   file bundled with the gtsam wheel (``gtsam.findExampleDataFile``), skipping
   if gtsam is not installed or does not bundle it.
-* ``cholmod_backend`` — the way to CHOLMOD (``"cvxopt"``, :mod:`posegraph.cholmod`); skips, with
+* ``cholmod_backend`` — the way to CHOLMOD (``"cvxopt"``, :mod:`posegraph.linalg.cholmod`); skips, with
   the reason, when cvxopt is not installed.
 * ``text_file(text, name="input.g2o")`` — a fixture returning a function that
   writes ``text`` byte for byte (no newline translation) into the test's
@@ -127,7 +127,7 @@ def text_file(tmp_path):
 @pytest.fixture(params=["cvxopt"])
 def cholmod_backend(request):
     """Which CHOLMOD binding the test runs on (see the module docstring)."""
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     reason = cholmod.unavailable_reason()
     if reason is not None:

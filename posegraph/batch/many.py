@@ -77,7 +77,7 @@ def _plan(paths, out_dir, options: dict, plot: bool, covariances: bool, report: 
     jobs = plan_jobs(paths, out_dir, argv, plot=plot, covariances=covariances)
     check_options(argv, jobs[0].input, jobs[0].output)
     if plot:  # once here, rather than one failed row per file
-        from posegraph.plot import require_matplotlib
+        from posegraph.analysis.plot import require_matplotlib
 
         require_matplotlib()
     _check_out_dir(out_dir)

@@ -110,7 +110,7 @@ def write_summary(rows: list, path: str, command: list | None = None) -> None:
     import csv
     import io
 
-    from posegraph.atomic import StagedOutputs, json_text
+    from posegraph.io.atomic import StagedOutputs, json_text
 
     summary = {"counts": tally(rows), "files": rows}
     if command is not None:

@@ -27,7 +27,7 @@ _ONE_AT_A_TIME = threading.Lock()
 def optimize_file(job: FileJob) -> dict:
     """Run ``job`` as ``posegraph optimize`` in this process, write its log; its summary row
     (:func:`posegraph.batch.rows.file_row`)."""
-    from posegraph.atomic import write_text_atomic
+    from posegraph.io.atomic import write_text_atomic
     from posegraph.batch.rows import file_row
 
     from posegraph.cli.startup import import_solver_modules
@@ -44,7 +44,7 @@ def optimize_file(job: FileJob) -> dict:
 def _run_captured(argv: list) -> tuple[str, int]:
     """``(what it printed on stdout and stderr, interleaved; exit status)`` of ``posegraph ARGV``.
 
-    The BLAS under CHOLMOD runs one thread (:class:`~posegraph.native_threads.NativeThreads`), as
+    The BLAS under CHOLMOD runs one thread (:class:`~posegraph.linalg.native_threads.NativeThreads`), as
     in a ``posegraph optimize`` process: the worker processes share the machine's cores.
     """
     import contextlib
@@ -53,7 +53,7 @@ def _run_captured(argv: list) -> tuple[str, int]:
 
     from posegraph.cli.program import main
     from posegraph.cli.startup import import_solver_modules
-    from posegraph.native_threads import NativeThreads
+    from posegraph.linalg.native_threads import NativeThreads
 
     # The previous file's reference cycles go before import_solver_modules freezes what is alive.
     gc.collect()

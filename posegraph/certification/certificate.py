@@ -31,13 +31,10 @@ import numpy as np
 
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import SyncProblem, component_problems, objective, sync_problem
-from posegraph.certification.verify import (
-    DEFAULT_TOLERANCE, ROUND_OFF, Verification, certificate_matrix, data_scale, lambda_blocks, verify,
-)  # fmt: skip
-from posegraph.graph import PoseGraph
+from posegraph.certification.verify import DEFAULT_TOLERANCE, Budget, Verification, data_scale, verify_point
+from posegraph.model.graph import PoseGraph
 
-__all__ = ["Certificate", "certify", "isotropic_graph", "candidate_poses", "poses_to_blocks", "blocks_to_poses",
-           "Budget", "verify_point"]  # fmt: skip
+__all__ = ["Certificate", "certify", "isotropic_graph", "candidate_poses", "poses_to_blocks", "blocks_to_poses"]
 
 
 @dataclass
@@ -81,32 +78,6 @@ class Certificate:
         """The fields as JSON-ready values (poses left out)."""
         out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "poses"}
         return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in out.items()}
-
-
-@dataclass(frozen=True)
-class Budget:
-    """The certification tolerance for one component: ``F − L ≤ eta F + ROUND_OFF scale``."""
-
-    eta: float
-    scale: float
-    """:func:`~posegraph.certification.verify.data_scale` of the component."""
-
-    def allowed(self, value: float) -> float:
-        """The largest gap ``F − L`` certified at ``F = value``."""
-        return self.eta * max(value, 0.0) + ROUND_OFF * self.scale
-
-    def shift(self, value: float, dn: int) -> float:
-        """The σ whose slack ``dn σ`` is the whole allowance at ``F = value``: a level whose Q − Λ is proven
-        above −σ is solved (no higher rank can raise its bound by more than the tolerance)."""
-        return self.allowed(value) / dn
-
-
-def verify_point(problem: SyncProblem, u: np.ndarray, value: float, budget: Budget, anchor: int = 0):
-    """``(Λ blocks, Verification)`` of the critical point ``u`` ``(n, r, d+1)`` whose rounded estimate has F = ``value``."""
-    lambdas = lambda_blocks(problem, u)
-    dn = lambdas.shape[0] * lambdas.shape[1]
-    matrix = certificate_matrix(problem, lambdas)
-    return lambdas, verify(matrix, u, lambdas, budget.shift(value, dn), budget.scale, anchor)
 
 
 def problem_graph(problem: SyncProblem, group, world: bool) -> PoseGraph:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.certification.problem import SyncProblem, edge_maps, edge_residuals, objective, scatter_to_vertices
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 from posegraph.solve.linear import make_linear_solver
 from posegraph.solve.sparsity import analyze_pattern, gradient_values, hessian_values
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, edge_components
+from posegraph.model.graph import PoseGraph, edge_components
 from posegraph.errors import GraphError
 
 __all__ = ["SyncProblem", "sync_problem", "component_problems", "isotropic_precisions", "edge_maps", "edge_residuals", "objective",

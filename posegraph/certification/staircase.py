@@ -27,7 +27,7 @@ import numpy as np
 
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import SyncProblem, edge_maps, objective
-from posegraph.certification.verify import Verification, certificate_matrix, lambda_blocks
+from posegraph.certification.verify import Verification, certificate_matrix, lambda_blocks, verify_point
 from posegraph.solve.linear import make_linear_solver
 
 __all__ = ["StaircaseResult", "DataMatrix", "riemannian_staircase", "round_solution", "trust_region"]
@@ -252,11 +252,9 @@ def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verificatio
                          anchor: int = 0) -> StaircaseResult:  # fmt: skip
     """Climb from the rank-d point ``u`` (with its failed ``check``) until a level's relaxation is solved
     (Q − Λ proven above −σ with ``dn σ`` within ``budget``'s allowance,
-    :class:`~posegraph.certification.certificate.Budget`: no higher rank can raise the bound by more),
+    :class:`~posegraph.certification.verify.Budget`: no higher rank can raise the bound by more),
     an escape fails, or rank ``max_rank``. Each level's point is rounded; the best rounding is refined
     by Newton at the end and verified at rank d, which certifies it when the relaxation is tight."""
-    from posegraph.certification.certificate import verify_point
-
     result = StaircaseResult(u, objective(problem, u), check.lower_bound, _trace(problem, u), check, u.shape[1])
     data, best_rounded = DataMatrix(problem), None
     while result.rank < max_rank and not check.positive_semidefinite:

@@ -53,12 +53,12 @@ from functools import cached_property
 import numpy as np
 
 from posegraph.certification.problem import SyncProblem, data_matrix_blocks, euclidean_gradient
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 from posegraph.solve.linear import make_linear_solver
 from posegraph.solve.sparsity import HessianPattern, analyze_pattern, hessian_values
 
 __all__ = ["DEFAULT_TOLERANCE", "CertificateMatrix", "lambda_blocks", "certificate_matrix", "Verification", "verify",
-           "data_scale"]  # fmt: skip
+           "data_scale", "Budget", "verify_point"]  # fmt: skip
 
 DEFAULT_TOLERANCE = 1e-6
 """η: certified when the proven lower bound L has ``F − L ≤ η F`` (plus round-off, :data:`ROUND_OFF`)."""
@@ -289,3 +289,29 @@ def _smallest_ritz_pair(matrix: CertificateMatrix, solver, u: np.ndarray, iterat
     count = max(1, int(np.count_nonzero(values <= 0.1 * min(values[0], 0.0)))) if values[0] < 0 else 1
     chosen = full @ vectors[:, :count]
     return float(values[0]), float(residuals[0]), (chosen / np.linalg.norm(chosen[rows], axis=0)).T
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The certification tolerance for one component: ``F − L ≤ eta F + ROUND_OFF scale``."""
+
+    eta: float
+    scale: float
+    """:func:`~posegraph.certification.verify.data_scale` of the component."""
+
+    def allowed(self, value: float) -> float:
+        """The largest gap ``F − L`` certified at ``F = value``."""
+        return self.eta * max(value, 0.0) + ROUND_OFF * self.scale
+
+    def shift(self, value: float, dn: int) -> float:
+        """The σ whose slack ``dn σ`` is the whole allowance at ``F = value``: a level whose Q − Λ is proven
+        above −σ is solved (no higher rank can raise its bound by more than the tolerance)."""
+        return self.allowed(value) / dn
+
+
+def verify_point(problem: SyncProblem, u: np.ndarray, value: float, budget: Budget, anchor: int = 0):
+    """``(Λ blocks, Verification)`` of the critical point ``u`` ``(n, r, d+1)`` whose rounded estimate has F = ``value``."""
+    lambdas = lambda_blocks(problem, u)
+    dn = lambdas.shape[0] * lambdas.shape[1]
+    matrix = certificate_matrix(problem, lambdas)
+    return lambdas, verify(matrix, u, lambdas, budget.shift(value, dn), budget.scale, anchor)

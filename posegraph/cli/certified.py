@@ -40,7 +40,7 @@ def polish_certified(held, chordal_result, params, status: Status, seconds: dict
     The section holds the certificate's fields too.
     """
     from posegraph.certification.certificate import certify
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
     from posegraph.solve import optimize
 
     with Timer() as t_cert:

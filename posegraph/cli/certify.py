@@ -85,7 +85,7 @@ def certificate_report(certificate, source: str, graph) -> dict:
 
 def _write_outputs(args, graph, certificate, seconds_read: float) -> None:
     """OUT and the report, staged and renamed into place together (``-``: printed after)."""
-    from posegraph.atomic import StagedOutputs, json_text
+    from posegraph.io.atomic import StagedOutputs, json_text
     from posegraph.io.g2o import format_g2o, write_g2o
 
     printed = []

@@ -30,11 +30,11 @@ def interrupted_status(exc: BaseException) -> int:
 
 def interrupted_message(exc: BaseException) -> str:
     """``interrupted`` (``by SIGTERM``…), then exactly what this run has delivered
-    (:func:`posegraph.atomic.committed_outputs`): "nothing written", or the outputs complete on
+    (:func:`posegraph.io.atomic.committed_outputs`): "nothing written", or the outputs complete on
     disk when the signal came after their renames (which it never splits)."""
     import signal
 
-    from posegraph.atomic import committed_outputs
+    from posegraph.io.atomic import committed_outputs
 
     number = getattr(exc, "signum", signal.SIGINT)
     said = "interrupted" if number == signal.SIGINT else f"interrupted by {signal.Signals(number).name}"
@@ -187,11 +187,11 @@ def check_output(
     """Fail before any work if ``path`` cannot be written as asked; ``-`` is standard output where
     the command can write this output there (``stdout``), else a usage error.
 
-    The path is judged as :func:`posegraph.atomic.output_target` will deliver it: a folder, a
+    The path is judged as :func:`posegraph.io.atomic.output_target` will deliver it: a folder, a
     dangling link, a block device or a socket is refused; a device or FIFO must be writable; a
     file (or a link's target) must be creatable in its folder and not be an input.
     """
-    from posegraph.atomic import output_target
+    from posegraph.io.atomic import output_target
     from posegraph.errors import OutputError
 
     if path == STDIO:
@@ -221,7 +221,7 @@ def check_output(
 def _cannot_create_in(folder: str) -> str:
     """Why no file can be created in ``folder`` ("" if one can): a real attempt, as the writers will
     make (``os.access`` says yes to root on read-only file systems and on ``/proc``)."""
-    from posegraph.atomic import create_new_file
+    from posegraph.io.atomic import create_new_file
 
     try:
         probe = create_new_file(folder, ".posegraph-probe-")
@@ -307,7 +307,7 @@ def display_name(path: str) -> str:
 
 
 def require_matplotlib() -> None:
-    from posegraph.plot import require_matplotlib
+    from posegraph.analysis.plot import require_matplotlib
 
     require_matplotlib()
 

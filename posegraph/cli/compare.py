@@ -46,7 +46,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from posegraph.gtsam_bridge import require_gtsam
+    from posegraph.crosscheck.gtsam_bridge import require_gtsam
 
     require_gtsam()
     if args.report:
@@ -89,8 +89,8 @@ def _run_ours(args, status: Status) -> dict:
 
 
 def _run_gtsam(args, status: Status, ours: dict):
-    """gtsam's run (:func:`posegraph.gtsam_bridge.run_gtsam`) and how it started: "given" or ``--init``."""
-    from posegraph.gtsam_bridge import run_gtsam
+    """gtsam's run (:func:`posegraph.crosscheck.gtsam_bridge.run_gtsam`) and how it started: "given" or ``--init``."""
+    from posegraph.crosscheck.gtsam_bridge import run_gtsam
 
     params, graph = ours["params"], ours["graph"]
     if args.gtsam_start == "same" or args.init == "odometry":
@@ -114,7 +114,7 @@ def _compare(our_poses, their_poses, our_cost: float, their_cost: float) -> dict
     SE(2)), and ``|our_cost − their_cost| / max(1, |their_cost|)``."""
     import numpy as np
 
-    from posegraph.evaluate import rotation_angle
+    from posegraph.analysis.evaluate import rotation_angle
 
     r = our_poses.shape[-1] - 1
     rot = np.degrees(rotation_angle(np.swapaxes(our_poses[:, :r, :r], -1, -2) @ their_poses[:, :r, :r]))
@@ -180,7 +180,7 @@ def _print_table(args, ours: dict, theirs, gtsam_init: str, comparison: dict, ag
 
 
 def _write_report(args, ours: dict, theirs, gtsam_init: str, comparison: dict, agree: bool) -> None:
-    from posegraph.atomic import write_json_atomic
+    from posegraph.io.atomic import write_json_atomic
 
     params, result = ours["params"], ours["result"]
     phases = _phases(args, ours, theirs, gtsam_init)

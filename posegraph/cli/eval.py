@@ -53,13 +53,13 @@ def read_poses(path: str, repair_information: bool):
         return trajectory.read_tum(path)
     if kind == "kitti":
         return trajectory.read_kitti(path)
-    from posegraph.evaluate import read_trajectory
+    from posegraph.analysis.evaluate import read_trajectory
 
     return read_trajectory(path, repair_information=repair_information)
 
 
 def run(args) -> int:
-    from posegraph.evaluate import evaluate
+    from posegraph.analysis.evaluate import evaluate
     from posegraph.io.trajectory import matching_keys
 
     if (args.reference is None) != args.priors:
@@ -105,12 +105,12 @@ def run(args) -> int:
 
 
 def _against_priors(args):
-    """``(keys, EST's poses, keys, the poses its priors give)``, one key per prior (:func:`posegraph.priors.prior_poses`)."""
+    """``(keys, EST's poses, keys, the poses its priors give)``, one key per prior (:func:`posegraph.model.priors.prior_poses`)."""
     import numpy as np
 
     from posegraph.errors import InputError
     from posegraph.io.g2o import read_g2o
-    from posegraph.priors import prior_poses
+    from posegraph.model.priors import prior_poses
 
     graph = read_g2o(args.estimate, require_edges=False, repair_information=args.repair_information)
     vertex, poses = prior_poses(graph)
@@ -121,9 +121,9 @@ def _against_priors(args):
 
 
 def _alignment_group(estimate_poses, reference_poses) -> str:
-    """``"SE(2)"`` when both trajectories are planar ``(n, 3, 3)`` (:func:`posegraph.evaluate.evaluate` then
+    """``"SE(2)"`` when both trajectories are planar ``(n, 3, 3)`` (:func:`posegraph.analysis.evaluate.evaluate` then
     aligns in the plane), ``"Sim(3)"`` when either carries scales (a similarity alignment), else ``"SE(3)"``."""
-    from posegraph.evaluate import is_similarity_trajectory
+    from posegraph.analysis.evaluate import is_similarity_trajectory
 
     if is_similarity_trajectory(estimate_poses) or is_similarity_trajectory(reference_poses):
         return "Sim(3)"

@@ -64,12 +64,12 @@ def _check_options(args) -> None:
 def run(args) -> int:
     _check_options(args)
     if args.open3d or args.ply:
-        from posegraph.export_open3d import require_open3d
+        from posegraph.io.export_open3d import require_open3d
 
         require_open3d()
     import numpy as np
 
-    from posegraph.atomic import StagedOutputs
+    from posegraph.io.atomic import StagedOutputs
     from posegraph.io import trajectory
 
     graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=args.repair_information,
@@ -96,7 +96,7 @@ def run(args) -> int:
 def _write_open3d(args, graph, outputs) -> None:
     if not (args.open3d or args.ply):
         return
-    from posegraph.export_open3d import write_open3d_pose_graph, write_trajectory_ply
+    from posegraph.io.export_open3d import write_open3d_pose_graph, write_trajectory_ply
 
     if args.open3d:
         with outputs.writing(args.open3d, suffix=".json") as tmp:

@@ -27,7 +27,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from posegraph.report import graph_info
+    from posegraph.analysis.report import graph_info
 
     graph, refusals = _read_for_description(args)
     info = graph_info(graph)
@@ -82,7 +82,7 @@ _TANGENT_SIZES = {"SE3": 6, "SE2": 3, "SIM3": 7}
 
 
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
-    """The text output's ``(label, value)`` lines from :func:`posegraph.report.graph_info`."""
+    """The text output's ``(label, value)`` lines from :func:`posegraph.analysis.report.graph_info`."""
     rows = [
         ("file", display_name(path) + _GROUP_NOTES[info["group"]]),
         ("vertices", f"{info['num_vertices']} (ids {info['id_min']}..{info['id_max']}, "

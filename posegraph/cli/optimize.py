@@ -82,7 +82,7 @@ def run(args) -> int:
     status = Status(args.quiet)
     _check_outputs(args)
     import_solver_modules()  # first: it sets one BLAS thread before numpy loads
-    from posegraph.report import chi2_summary
+    from posegraph.analysis.report import chi2_summary
     from posegraph.solve import optimize
 
     graph, held, start, file_cost, seconds = _start(args, status)
@@ -200,8 +200,8 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
     An H that is not positive definite there stops the command before anything is written.
     """
-    from posegraph.cholmod import NotPositiveDefiniteError
-    from posegraph.covariance import marginal_covariances
+    from posegraph.linalg.cholmod import NotPositiveDefiniteError
+    from posegraph.analysis.covariance import marginal_covariances
     from posegraph.errors import OutputError
 
     with Ticker(status, "computing covariances"), Timer() as t:
@@ -221,7 +221,7 @@ def _write_outputs(
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
-    from posegraph.atomic import StagedOutputs, json_text
+    from posegraph.io.atomic import StagedOutputs, json_text
     from posegraph.io.g2o import format_g2o, write_g2o
 
     printed = []
@@ -235,7 +235,7 @@ def _write_outputs(
                     write_g2o(tmp, written, result.poses)
         seconds["write"] = t_write.seconds
         if args.report:
-            from posegraph.report import optimize_report
+            from posegraph.analysis.report import optimize_report
 
             report = optimize_report(
                 display_name(args.input), display_name_out(args.output), graph, result, init=args.init,
@@ -261,7 +261,7 @@ def _write_outputs(
 
 def _draw(args, status: Status, graph, result) -> bool:
     """The figure, once the result is safe: a failure (or Ctrl-C) is a warning, not a lost result."""
-    from posegraph.plot import plot_trajectories
+    from posegraph.analysis.plot import plot_trajectories
 
     try:
         with Ticker(status, f"drawing {args.plot}"):
@@ -330,8 +330,8 @@ def _stats_table(chi2: dict) -> list[str]:
 
 
 def _warn_if_chi2_high(chi2: dict) -> None:
-    """One warning when χ²/dof is far above 1 (:data:`posegraph.report.CHI2_PER_DOF_WARNING`)."""
-    from posegraph.report import CHI2_PER_DOF_WARNING
+    """One warning when χ²/dof is far above 1 (:data:`posegraph.analysis.report.CHI2_PER_DOF_WARNING`)."""
+    from posegraph.analysis.report import CHI2_PER_DOF_WARNING
 
     if not chi2["chi2_per_dof"] > CHI2_PER_DOF_WARNING:
         return

@@ -53,7 +53,7 @@ def run(args) -> int:
     check_inputs(inputs)
     _check_covariance_options(args)
     check_figure(args.output, inputs=inputs)
-    from posegraph.plot import plot_trajectories
+    from posegraph.analysis.plot import plot_trajectories
 
     status = Status(True)
     graphs = [read_graph(path, status, require_edges=False, repair_information=args.repair_information,

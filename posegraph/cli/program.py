@@ -23,7 +23,7 @@ def main(argv=None) -> int:
     as status 2, a bug (any other exception) as status 3 with a hint to rerun with ``--debug``,
     which re-raises it with its traceback.
     """
-    from posegraph.atomic import forget_committed_outputs
+    from posegraph.io.atomic import forget_committed_outputs
     from posegraph.cli.startup import stop_signals_interrupt
 
     argv = sys.argv[1:] if argv is None else list(argv)

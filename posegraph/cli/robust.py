@@ -98,7 +98,7 @@ def final_weights(graph, args, result, robust):
     loss = robust_loss(args)
     if loss is None:
         return None
-    from posegraph.robust.starts import squared_residuals
+    from posegraph.robust.measurements import squared_residuals
 
     return np.asarray(loss.weight(squared_residuals(graph, result.poses)), dtype=np.float64)
 
@@ -111,7 +111,7 @@ def final_prior_weights(graph, args, result, robust):
         return None
     if robust is not None:
         return robust.prior_weights
-    from posegraph.robust.starts import measurement_residuals
+    from posegraph.robust.measurements import measurement_residuals
 
     return np.asarray(robust_loss(args).weight(measurement_residuals(graph, result.poses)[graph.num_edges:]))
 
@@ -154,7 +154,7 @@ def known_inlier_facts(graph, robust) -> dict | None:
         return None
     import numpy as np  # here, not at import: --help and the parser must not load numpy
 
-    from posegraph.robust.starts import squared_residuals
+    from posegraph.robust.measurements import squared_residuals
     from posegraph.robust.trust import known_chi2_per_dof
 
     ratio = known_chi2_per_dof(squared_residuals(graph, robust.poses), robust.known, graph.group.dim)
@@ -166,7 +166,7 @@ def warn_about_known_inliers(graph, known: dict | None) -> None:
     """Warnings naming the known inliers GNC released, or (strict, or still failing) kept though they
     fail the inlier test, and one when their χ² per dof is far above 1."""
     from posegraph.cli.common import warn
-    from posegraph.report import CHI2_PER_DOF_WARNING
+    from posegraph.analysis.report import CHI2_PER_DOF_WARNING
 
     if known is None:
         return
@@ -209,7 +209,7 @@ def output_graph(graph, weights, *, drop: bool, prior_weights=None):
     if not drop or weights is None:
         return graph
     from posegraph.robust.active import edge_subgraph
-    from posegraph.robust.starts import weighted_priors
+    from posegraph.robust.measurements import weighted_priors
 
     kept = edge_subgraph(graph, np.flatnonzero(weights >= OUTLIER_WEIGHT))
     if prior_weights is None or np.all(prior_weights >= OUTLIER_WEIGHT):

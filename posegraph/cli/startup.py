@@ -126,7 +126,7 @@ def single_threaded_blas() -> None:
     0.09 s with one thread, and a whole ``posegraph optimize`` ~30 ms longer. Nothing on this path
     wants more: numpy only multiplies small matrices, and the solver runs CHOLMOD's BLAS on one
     thread anyway (``SolverParams.blas_threads``), which with the variable set needs no
-    threadpoolctl (:class:`posegraph.native_threads.NativeThreads`).
+    threadpoolctl (:class:`posegraph.linalg.native_threads.NativeThreads`).
     """
     if "numpy" not in sys.modules:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -136,7 +136,7 @@ def import_solver_modules() -> None:
     """Import what the read / initialise / optimise phases use, so that their timings are work,
     not first-use imports. Only those: scipy.sparse.linalg (SuperLU) and scipy.sparse.csgraph
     (odometry start) import on first use, as they are needed only off the default path. With
-    CHOLMOD from cvxopt (:mod:`posegraph.cholmod`, ~10 ms to import) that path needs no scipy at
+    CHOLMOD from cvxopt (:mod:`posegraph.linalg.cholmod`, ~10 ms to import) that path needs no scipy at
     all (~0.14 s less per run); without cvxopt, SuperLU's route needs ``scipy.sparse``, imported
     here by :func:`import_scipy_sparse`."""
     single_threaded_blas()
@@ -159,7 +159,7 @@ def import_solver_modules() -> None:
 
 
 def _import_solver_modules() -> None:
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if cholmod.load() is None:
         import_scipy_sparse()
@@ -180,7 +180,7 @@ class stop_signals_interrupt:
     Their default action ends the process at once, leaving the temporary files of the outputs
     being written (even complete ones) and, between two renames, a new result beside an old
     report; raised as an exception, they unwind as Ctrl-C does: temporary files deleted, renames
-    held back until the last one (:class:`posegraph.atomic.StagedOutputs`), exit status 128 +
+    held back until the last one (:class:`posegraph.io.atomic.StagedOutputs`), exit status 128 +
     the signal. Only signals at their default action are taken: one ignored (``nohup`` ignores
     SIGHUP) stays ignored, a handler an embedding program set stays its own. Only in the main
     thread, where Python handles signals; the previous handlers are back after the block.

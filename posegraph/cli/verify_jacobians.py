@@ -29,10 +29,10 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from posegraph.verify import format_checks, verify_all
+    from posegraph.crosscheck.jacobians import format_checks, verify_all
 
     if not args.no_gtsam:
-        from posegraph.gtsam_bridge import require_gtsam
+        from posegraph.crosscheck.gtsam_bridge import require_gtsam
 
         try:
             require_gtsam()

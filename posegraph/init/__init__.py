@@ -9,7 +9,7 @@ Gauss-Newton and Levenberg-Marquardt only find the optimum from a good start. Th
   the cost given them (:func:`posegraph.init.chordal.chordal_initialization`).
 
 Every method keeps fixed vertices and each unfixed component's anchor at their file pose
-(:func:`posegraph.graph.held_vertices`), as the solver does. ``docs/initialisation.md`` explains the weight
+(:func:`posegraph.model.graph.held_vertices`), as the solver does. ``docs/initialisation.md`` explains the weight
 choices and records measured costs and timings against gtsam's ``InitializePose3``.
 """
 
@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init.chordal import chordal_initialization, chordal_rotations, translations_given_rotations
-from posegraph.graph import held_vertices
-from posegraph.heap import release_free_memory
+from posegraph.model.graph import held_vertices
+from posegraph.linalg.heap import release_free_memory
 from posegraph.init.odometry import odometry_initialization, spanning_tree
 
 __all__ = [

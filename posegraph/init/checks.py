@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.errors import GraphError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 
 __all__ = ["require_usable"]
 

@@ -46,9 +46,9 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.errors import GraphError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init.checks import require_usable
-from posegraph.graph import held_vertices
+from posegraph.model.graph import held_vertices
 from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.linear_system import NotPositiveDefiniteError, RelativeLeastSquares
 from posegraph.init.odometry import odometry_initialization

@@ -7,7 +7,7 @@ Both the chordal rotations and the translations given rotations minimise, over o
 
 with an r×r transfer ``P_e``, an r×r symmetric positive-definite weight ``W_e`` and an offset
 ``h_e`` (given as ``g_e = W_e h_e``, which is what the normal equations need). Held vertices
-(fixed and anchors, :func:`posegraph.graph.held_vertices`) are *eliminated*, not softly anchored by a
+(fixed and anchors, :func:`posegraph.model.graph.held_vertices`) are *eliminated*, not softly anchored by a
 prior: their blocks move to the right-hand side. Setting the gradient to zero gives, per edge,
 the normal-equation blocks
 
@@ -31,19 +31,19 @@ no coupling and a zero right-hand side; its edges to free vertices move to their
 as for any held vertex). Its solution equals that of the problem analysed for the counted edges
 and the larger held set, up to round-off (another elimination order).
 
-This module depends on :mod:`posegraph.cholmod` (scipy only on the SuperLU path), not on
+This module depends on :mod:`posegraph.linalg.cholmod` (scipy only on the SuperLU path), not on
 :mod:`posegraph.solve`: initialisation comes before the solver in the data flow. Every numerical
 failure of either backend (a matrix not positive definite to working precision, an overflow)
-raises :class:`~posegraph.cholmod.NotPositiveDefiniteError`.
+raises :class:`~posegraph.linalg.cholmod.NotPositiveDefiniteError`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from posegraph import cholmod as cholmod_library
-from posegraph import multigrid
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg import cholmod as cholmod_library
+from posegraph.linalg import multigrid
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 
 __all__ = ["RelativeLeastSquares", "LINEAR_SOLVERS", "NotPositiveDefiniteError"]
 
@@ -58,7 +58,7 @@ class RelativeLeastSquares:
     held : (n,) bool — vertices whose block is given, not solved for.
     edge_from, edge_to : (m,) int — vertex indices ``i``, ``j`` of each edge.
     linear_solver : ``"auto"`` | ``"cholmod"`` | ``"scipy"`` | ``"pcg"``.
-        ``"cholmod"``: CHOLMOD from cvxopt (:func:`posegraph.cholmod.block_cholesky`: supernodal
+        ``"cholmod"``: CHOLMOD from cvxopt (:func:`posegraph.linalg.cholmod.block_cholesky`: supernodal
         Cholesky, the vertex graph ordered as in the solver, symbolic analysis kept between
         solves); ``"scipy"``: SuperLU in symmetric mode (minimum-degree ordering on AᵀA+A, no
         off-diagonal pivoting — on an SPD matrix that is Cholesky in disguise), needing nothing
@@ -66,16 +66,16 @@ class RelativeLeastSquares:
         when CHOLMOD reports the matrix as not positive definite (it can, at round-off level,
         when the weights span many decades), or ``"pcg"`` when the factor foreseen from the vertex
         pattern would not fit in memory (:attr:`iterative`); ``"pcg"``: no factorisation, multigrid-preconditioned
-        conjugate gradients on H in r×r block form (:mod:`posegraph.multigrid`, pyamg; its
+        conjugate gradients on H in r×r block form (:mod:`posegraph.linalg.multigrid`, pyamg; its
         near-null space identity blocks, a uniform shift of every ``x_k``), each column of the
-        right-hand side to a relative residual of :data:`posegraph.multigrid.DEFAULT_TOLERANCE`.
+        right-hand side to a relative residual of :data:`posegraph.linalg.multigrid.DEFAULT_TOLERANCE`.
     threads : int or None, default 1
         Threads of the BLAS under CHOLMOD during its work
-        (:class:`posegraph.native_threads.NativeThreads`; None leaves it as it is).
+        (:class:`posegraph.linalg.native_threads.NativeThreads`; None leaves it as it is).
     block : int, default 3
         ``r``, the rows of each vertex's block ``x_k`` (3 for 3D graphs, 2 for planar ones).
     ordering : str, default ``"auto"``
-        CHOLMOD's fill-reducing ordering of the vertex graph (:func:`posegraph.cholmod.block_cholesky`).
+        CHOLMOD's fill-reducing ordering of the vertex graph (:func:`posegraph.linalg.cholmod.block_cholesky`).
     """
 
     def __init__(
@@ -122,7 +122,7 @@ class RelativeLeastSquares:
         ``(n,)`` bool: a view sharing the analysis (pattern, CHOLMOD's symbolic factorisation).
 
         Every component of the counted edges must contain a held vertex (e.g. ``held`` from
-        :func:`posegraph.graph.held_vertices` of the graph of the counted edges), else the system is
+        :func:`posegraph.model.graph.held_vertices` of the graph of the counted edges), else the system is
         singular. See the module docstring.
         """
         import copy
@@ -177,7 +177,7 @@ class RelativeLeastSquares:
         indices = np.empty(self._nnz, dtype=np.int32)
         indices[position.ravel()] = (r * rows[:, None, None] + axis[None, :, None] + 0 * axis[None, None, :]).ravel()
         self._indices = indices
-        # the vertex pattern (both triangles), for ordering the blocks (posegraph.cholmod.fill_reducing_order)
+        # the vertex pattern (both triangles), for ordering the blocks (posegraph.linalg.cholmod.fill_reducing_order)
         self._block_indptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
         self._block_rows = rows.astype(np.int32)
         # (p, r) positions of the diagonal entries of each variable's diagonal block (every free
@@ -299,7 +299,7 @@ class RelativeLeastSquares:
         return finite_solve
 
     def _multigrid_solve(self, data: np.ndarray, near_null_space: np.ndarray | None):
-        """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.multigrid`; smoothed
+        """Multigrid-preconditioned CG's solve for the matrix (:mod:`posegraph.linalg.multigrid`; smoothed
         aggregation: these r×r systems are small beside the solver's, its prolongators cheap)."""
         if self._multigrid is None:
             self._multigrid = multigrid.MultigridCG(smoothed=True)
@@ -322,7 +322,7 @@ class RelativeLeastSquares:
     def _analysed(self):
         """CHOLMOD's analysis, made once (None on the SuperLU and pcg paths). ``"auto"`` turns to
         ``"pcg"`` instead when the factor foreseen from the vertex pattern would not fit in the
-        memory left (:func:`posegraph.multigrid.factorisation_fits`)."""
+        memory left (:func:`posegraph.linalg.multigrid.factorisation_fits`)."""
         if self._cholesky is not None or self.linear_solver not in ("auto", "cholmod") or cholmod_library.load() is None:
             return self._cholesky
         if self.linear_solver == "auto" and not multigrid.factorisation_fits(

@@ -1,7 +1,7 @@
 """Odometry (spanning-tree) initialisation: compose measurements outward from the held vertices.
 
 Every component is covered by a spanning tree rooted at its held vertices (its fixed vertices,
-or else its anchor; :func:`posegraph.graph.held_vertices`). A held vertex keeps its file pose; every other
+or else its anchor; :func:`posegraph.model.graph.held_vertices`). A held vertex keeps its file pose; every other
 vertex ``v`` with tree parent ``p`` along edge ``e`` gets
 
     ``X_v = X_p Z_e``     if ``e`` goes ``p → v``,
@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init.checks import require_usable
-from posegraph.graph import held_vertices
+from posegraph.model.graph import held_vertices
 from posegraph.init.priors import align_to_priors, without_priors
 from posegraph.init.weights import rotation_weights
 

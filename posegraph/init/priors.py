@@ -2,7 +2,7 @@
 
 The initialisers solve for the relative configuration of each component with one vertex held at
 its file pose (:func:`without_priors`, today's gauge); a component tied to the world by priors
-(:mod:`posegraph.priors`) is then moved as one rigid body, ``X ← T X``, by the motion ``T`` that
+(:mod:`posegraph.model.priors`) is then moved as one rigid body, ``X ← T X``, by the motion ``T`` that
 best fits its priors (:func:`align_to_priors`): least squares over point pairs (weighted Kabsch /
 Umeyama without scale, Umeyama 1991) — each position prior gives ``(t(X_k), z)``; each pose prior,
 whose measured pose of the vertex is ``Z O⁻¹``, gives its origin and the tips of its unit axes,
@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, connected_components
+from posegraph.model.graph import PoseGraph, connected_components
 
 __all__ = ["without_priors", "align_to_priors", "rigid_fit"]
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init.linear_system import RelativeLeastSquares
 from posegraph.init.weights import WEIGHT_FLOOR
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError
-from posegraph.graph import PoseGraph, connected_components
+from posegraph.model.graph import PoseGraph, connected_components
 from posegraph.io.g2o_format import RECORDS
 from posegraph.io.g2o_lines import Lines
 

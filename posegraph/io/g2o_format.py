@@ -13,6 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from posegraph.lie import se2, so3
+
 VERTEX_TAG = "VERTEX_SE3:QUAT"
 EDGE_TAG = "EDGE_SE3:QUAT"
 FIX_TAG = "FIX"
@@ -138,3 +140,11 @@ def records_of(space_dim: int) -> dict[str, Record]:
 
 READ_TAGS = frozenset(RECORDS) | {FIX_TAG}
 """Every tag the reader reads; lines with other tags are skipped with a warning."""
+
+
+def pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:
+    """``(k, 3)`` ``x y θ`` of SE(2) matrices, or ``(k, 7)`` ``x y z qx qy qz qw`` of SE(3) ones: the pose
+    fields of a vertex, an edge or a prior line."""
+    if planar:
+        return se2.to_xytheta(poses)
+    return np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)

@@ -1,4 +1,4 @@
-"""g2o's unary edges (priors) and their offset parameters: reading into :class:`~posegraph.priors.Priors`, writing back.
+"""g2o's unary edges (priors) and their offset parameters: reading into :class:`~posegraph.model.priors.Priors`, writing back.
 
 Tags (g2o's ``types_slam3d`` / ``types_slam2d``; fields after the tag):
 
@@ -24,10 +24,10 @@ import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError
 from posegraph.io.g2o_checks import check_finite, check_information, raise_first, unit_quaternions
-from posegraph.io.g2o_format import G2O_TO_TANGENT, TANGENT_FROM_UPPER, Record, _entry_of_upper, _information_fields
+from posegraph.io.g2o_format import G2O_TO_TANGENT, TANGENT_FROM_UPPER, Record, _entry_of_upper, _information_fields, pose_values
 from posegraph.io.g2o_lines import Lines, parse_records
 from posegraph.lie import so2, so3
-from posegraph.priors import Priors
+from posegraph.model.priors import Priors
 
 PARAMS_TAG = "PARAMS_SE3OFFSET"
 SE3_PRIOR_TAG = "EDGE_SE3_PRIOR"
@@ -120,9 +120,9 @@ def read_priors(groups: dict[str, Lines], space_dim: int, ids: np.ndarray, path:
 
 
 def gauge_note(graph, path: str) -> list[str]:
-    """A warning for the components whose priors leave a rotation free (:mod:`posegraph.priors`), or none."""
-    from posegraph.graph import connected_components
-    from posegraph.priors import underdetermined_components
+    """A warning for the components whose priors leave a rotation free (:mod:`posegraph.model.priors`), or none."""
+    from posegraph.model.graph import connected_components
+    from posegraph.model.priors import underdetermined_components
 
     if graph.priors is None or graph.priors.num_position == 0:
         return []
@@ -267,13 +267,13 @@ def _formatted(graph, priors: Priors) -> list[str]:
     offsets = dict(priors.offsets)
     pose_tag, position_tag = (SE2_PRIOR_TAG, SE2_XY_PRIOR_TAG) if planar else (SE3_PRIOR_TAG, SE3_XYZ_PRIOR_TAG)
     pose_info = priors.pose_information if planar else priors.pose_information[:, G2O_TO_TANGENT][:, :, G2O_TO_TANGENT]
-    pose_values = _pose_values(priors.pose_measurements, planar)
+    pose_fields = pose_values(priors.pose_measurements, planar)
     pose_heads = _heads(graph.ids[priors.pose_vertex], priors.pose_offset_ids, planar, offsets)
     position_heads = _heads(graph.ids[priors.position_vertex], priors.position_offset_ids, planar, offsets)
-    lines = [f"{PARAMS_TAG} {i} " + " ".join(map(repr, _pose_values(m[None], False)[0].tolist()))
+    lines = [f"{PARAMS_TAG} {i} " + " ".join(map(repr, pose_values(m[None], False)[0].tolist()))
              for i, m in sorted(offsets.items())]
     for tag, heads, values, information in (
-        (pose_tag, pose_heads, pose_values, pose_info),
+        (pose_tag, pose_heads, pose_fields, pose_info),
         (position_tag, position_heads, priors.position_measurements, priors.position_information),
     ):  # fmt: skip
         rows, cols = np.triu_indices(information.shape[-1])
@@ -293,9 +293,3 @@ def _heads(vertex_ids: np.ndarray, offset_ids, planar: bool, offsets: dict) -> l
         offset_ids = np.zeros(len(vertex_ids), dtype=np.int64)
     return [f"{v} {p}" for v, p in zip(vertex_ids.tolist(), offset_ids.tolist())]
 
-
-def _pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:
-    """``x y θ`` or ``x y z qx qy qz qw`` per pose."""
-    from posegraph.io.g2o_write import _pose_values as values
-
-    return values(poses, planar)

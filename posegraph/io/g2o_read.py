@@ -1,4 +1,4 @@
-"""Reading g2o files: text to :class:`~posegraph.graph.PoseGraph`, in four checked stages.
+"""Reading g2o files: text to :class:`~posegraph.model.graph.PoseGraph`, in four checked stages.
 
 The stages, in the order their errors are reported (the first problem in the file wins within a
 stage): the format of each line (:mod:`posegraph.io.g2o_lines`), the values (finite numbers,
@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, excerpt
-from posegraph.graph import EdgeSource, PoseGraph
+from posegraph.model.graph import EdgeSource, PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
     space_dimension, topology, unit_quaternions,
@@ -30,7 +30,7 @@ from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
-from posegraph.heap import release_free_memory
+from posegraph.linalg.heap import release_free_memory
 from posegraph.io.text_input import Block, read_blocks
 from posegraph.lie import so2, so3
 from posegraph.lie.group import SE2, SE3

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputWarning, excerpt
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first, topology,
 )

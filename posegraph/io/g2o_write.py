@@ -13,15 +13,14 @@ import os
 
 import numpy as np
 
-from posegraph.atomic import atomic_path
+from posegraph.io.atomic import atomic_path
 from posegraph.errors import OutputError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o_format import (
     FIX_TAG, G2O_TO_TANGENT, PRIMARY_EDGE_TAG, UPPER_COLS, UPPER_COLS_2D, UPPER_ROWS,
-    UPPER_ROWS_2D, VERTEX_SE2_TAG, VERTEX_TAG,
+    UPPER_ROWS_2D, VERTEX_SE2_TAG, VERTEX_TAG, pose_values,
 )
 from posegraph.io.g2o_sim3 import format_sim3
-from posegraph.lie import se2, so3
 
 
 def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
@@ -37,7 +36,7 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     that reads back to the same double.
 
     Edges read from ``EDGE_SE3:QUAT`` (``EDGE_SE2``) lines and unchanged since
-    (``graph.edge_source``, see :class:`posegraph.graph.EdgeSource`) are written as they were
+    (``graph.edge_source``, see :class:`posegraph.model.graph.EdgeSource`) are written as they were
     read, trailing blanks and comments dropped: their numbers read back to the same edges either way.
     """
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
@@ -48,7 +47,7 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
         return format_sim3(graph, poses)
     planar = k == 3
     vertex_tag = VERTEX_SE2_TAG if planar else VERTEX_TAG
-    vertex_values = _pose_values(poses, planar)
+    vertex_values = pose_values(poses, planar)
     vertex_line = vertex_tag + " %d" + " %r" * vertex_values.shape[1] + "\n"
     parts = [vertex_line % (i, *v) for i, v in zip(graph.ids.tolist(), vertex_values.tolist())]
     parts += [f"{FIX_TAG} {i}\n" for i in graph.ids[graph.fixed].tolist()]
@@ -57,7 +56,7 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     if source is not None and source.format == edge_tag and source.matches(graph):
         parts.append(_copied_lines(edge_tag, source.lines))
         return "".join(parts + _prior_lines(graph))
-    measurement_values = _pose_values(graph.measurements, planar)
+    measurement_values = pose_values(graph.measurements, planar)
     if planar:
         upper = graph.information[:, UPPER_ROWS_2D, UPPER_COLS_2D]
     else:
@@ -79,13 +78,6 @@ def _prior_lines(graph: PoseGraph) -> list[str]:
     from posegraph.io.g2o_priors import format_priors
 
     return [line + "\n" for line in format_priors(graph) + list(graph.kept_lines)]
-
-
-def _pose_values(poses: np.ndarray, planar: bool) -> np.ndarray:
-    """``(k, 3)`` ``x y θ`` of SE(2) matrices, or ``(k, 7)`` ``x y z qx qy qz qw`` of SE(3) ones."""
-    if planar:
-        return se2.to_xytheta(poses)
-    return np.concatenate([poses[:, :3, 3], so3.to_quaternion(poses[:, :3, :3])], axis=1)
 
 
 def _copied_lines(tag: str, lines: list) -> str:

@@ -29,7 +29,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from posegraph.atomic import write_text_atomic
+from posegraph.io.atomic import write_text_atomic
 from posegraph.errors import InputError, InputWarning, excerpt
 from posegraph.io.text_input import Block, read_blocks, text_blocks
 from posegraph.lie import so3

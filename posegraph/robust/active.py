@@ -30,7 +30,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from posegraph.graph import EdgeSource, PoseGraph, held_vertices
+from posegraph.model.graph import EdgeSource, PoseGraph, held_vertices
+from posegraph.robust.measurements import num_priors, weighted_priors
 
 __all__ = ["edge_subgraph", "ActiveEdgeSolves", "AnalysedEdges", "DEFAULT_REANALYSE_FRACTION"]
 
@@ -94,7 +95,7 @@ optima."""
 
 def robust_ordering(params) -> str:
     """``params.ordering``, with ``"auto"`` read as :data:`ROBUST_ORDERING` when pymetis is installed."""
-    from posegraph.cholmod import nested_dissection_available
+    from posegraph.linalg.cholmod import nested_dissection_available
 
     if params.ordering != "auto":
         return params.ordering
@@ -165,10 +166,8 @@ class ActiveEdgeSolves:
 
     def _checked(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(weights (m + u,) float, active (m,) bool)``, after checking shape and values: one weight per
-        edge, then one per prior (``u`` of them, :func:`posegraph.robust.starts.num_priors`); ``(m,)``
+        edge, then one per prior (``u`` of them, :func:`posegraph.robust.measurements.num_priors`); ``(m,)``
         weighs the edges alone, the priors at 1."""
-        from posegraph.robust.starts import num_priors
-
         weights = np.asarray(weights, dtype=np.float64)
         m, u = self.graph.num_edges, num_priors(self.graph)
         if weights.shape == (m,) and u:
@@ -190,10 +189,8 @@ class ActiveEdgeSolves:
     def _restriction(self, analysed: AnalysedEdges, weights: np.ndarray, active: np.ndarray):
         """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None)`` for a solve over
         ``S`` in which only the active edges (and priors) count; ``held``: the vertices the graph of
-        the active edges and priors holds (:func:`posegraph.graph.held_vertices`: fixed, one anchor
+        the active edges and priors holds (:func:`posegraph.model.graph.held_vertices`: fixed, one anchor
         per component no active prior reaches), None when every edge of ``S`` and every prior is active."""
-        from posegraph.robust.starts import weighted_priors
-
         keep = np.flatnonzero(analysed.edges)
         m = self.graph.num_edges
         information = analysed.graph.information * weights[keep][:, None, None]

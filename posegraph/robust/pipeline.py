@@ -42,12 +42,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
-from posegraph.robust.starts import (
-    known_inlier_mask, measurement_dimensions, measurement_residuals, num_priors, robust_chordal_start,
-)
+from posegraph.robust.measurements import known_inlier_mask, measurement_dimensions, measurement_residuals, num_priors
+from posegraph.robust.starts import robust_chordal_start
 from posegraph.robust.trust import (
     contradicted_odometry, best_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )

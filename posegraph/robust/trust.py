@@ -1,7 +1,7 @@
 """Which edges robust optimisation trusts, and the check of that trust at its result.
 
 :func:`posegraph.robust.optimize_robust` keeps its known inliers (by default the odometry edges,
-:meth:`~posegraph.graph.PoseGraph.odometry_mask`) at weight 1 whatever their residual. One wrong
+:meth:`~posegraph.model.graph.PoseGraph.odometry_mask`) at weight 1 whatever their residual. One wrong
 known inlier then bends the whole answer, and the test that rejects wrong loop closures can no
 longer see it: the edges that disagree with it are rejected instead. Two guards:
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, neighbour_pairs, vertex_ranks
+from posegraph.model.graph import PoseGraph, neighbour_pairs, vertex_ranks
 
 __all__ = [
     "parallel_odometry_mask", "best_edges_of_unkept_pairs", "contradicted_odometry", "known_inliers_above",

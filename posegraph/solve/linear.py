@@ -7,11 +7,11 @@ Every backend is built once per graph from a :class:`~posegraph.solve.sparsity.H
 inversion). :func:`make_linear_solver` picks one by name:
 
 ``"cholmod"``
-    CHOLMOD's supernodal Cholesky from the cvxopt wheel (:mod:`posegraph.cholmod`, no scipy
+    CHOLMOD's supernodal Cholesky from the cvxopt wheel (:mod:`posegraph.linalg.cholmod`, no scipy
     import). The fill-reducing ordering is computed on the vertex graph (p nodes, one entry per
     d×d block) and expanded to the blocks; the analysis runs once, each iteration only the
     numeric factorisation, which reads the lower triangle directly. Ordering ``"auto"``: AMD
-    below :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES` free vertices, METIS nested
+    below :data:`posegraph.linalg.cholmod.NESTED_DISSECTION_VERTICES` free vertices, METIS nested
     dissection (pymetis) from there (figures in ``docs/cholesky.md``).
 ``"scipy"``
     Needs nothing beyond scipy wheels. SuperLU with no pivoting (``diag_pivot_thresh=0``,
@@ -23,7 +23,7 @@ inversion). :func:`make_linear_solver` picks one by name:
     (U = D Lᵀ), so it is stable.
 ``"pcg"``
     No factorisation: conjugate gradients preconditioned by an aggregation multigrid W-cycle
-    (pyamg, :mod:`posegraph.multigrid`) on the whole symmetric matrix in d×d block-CSR
+    (pyamg, :mod:`posegraph.linalg.multigrid`) on the whole symmetric matrix in d×d block-CSR
     form (:func:`~posegraph.solve.sparsity.symmetric_blocks`), its near-null space the global
     motions at the current poses (:meth:`LinearSolver.linearized_at`). Memory linear in the
     graph, where a Cholesky factor grows as n log n on surface-like graphs. Each solve stops at
@@ -31,7 +31,7 @@ inversion). :func:`make_linear_solver` picks one by name:
     LM's gradient falls), ``tolerance`` at the least. Gives no factor (covariances factorise anyway).
 ``"auto"``
     ``"cholmod"`` when cvxopt imports, else ``"scipy"`` — unless the factor foreseen from the vertex
-    pattern would not fit in the memory left (:func:`posegraph.multigrid.factorisation_fits`): then ``"pcg"`` for a caller
+    pattern would not fit in the memory left (:func:`posegraph.linalg.multigrid.factorisation_fits`): then ``"pcg"`` for a caller
     that needs no factor (the optimizer), with a warning, or, without pyamg, an ``ImportError``
     that names the sizes and the install hint instead of a run the system would kill.
 
@@ -44,9 +44,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph import cholmod as cholmod_library
-from posegraph import multigrid
-from posegraph.cholmod import NotPositiveDefiniteError
+from posegraph.linalg import cholmod as cholmod_library
+from posegraph.linalg import multigrid
+from posegraph.linalg.cholmod import NotPositiveDefiniteError
 from posegraph.solve.sparsity import HessianPattern, lower_csc, symmetric_block_values, symmetric_blocks
 
 __all__ = [
@@ -61,7 +61,7 @@ __all__ = [
 
 
 def cholmod_available() -> bool:
-    """Whether CHOLMOD can be used (cvxopt imports: :func:`posegraph.cholmod.load`)."""
+    """Whether CHOLMOD can be used (cvxopt imports: :func:`posegraph.linalg.cholmod.load`)."""
     return cholmod_library.load() is not None
 
 
@@ -114,7 +114,7 @@ def shifted(pattern: HessianPattern, data: np.ndarray, shift: np.ndarray | None)
 
 
 class CholmodSolver(LinearSolver):
-    """CHOLMOD supernodal Cholesky (:func:`posegraph.cholmod.block_cholesky`); analysis once in the constructor."""
+    """CHOLMOD supernodal Cholesky (:func:`posegraph.linalg.cholmod.block_cholesky`); analysis once in the constructor."""
 
     ORDERINGS = cholmod_library.ORDERINGS
 
@@ -295,7 +295,7 @@ iterate then has all but a negligible part of the exact step's model decrease.""
 
 
 class MultigridSolver(LinearSolver):
-    """Multigrid-preconditioned CG (:mod:`posegraph.multigrid`) on H in block-CSR form; no factor."""
+    """Multigrid-preconditioned CG (:mod:`posegraph.linalg.multigrid`) on H in block-CSR form; no factor."""
 
     def __init__(self, pattern: HessianPattern, tolerance: float = multigrid.DEFAULT_TOLERANCE):
         self._cg = multigrid.MultigridCG(tolerance)  # first: without pyamg, nothing else is made
@@ -376,11 +376,11 @@ def make_linear_solver(
     """Build the backend ``kind`` (``"auto"``, ``"cholmod"``, ``"scipy"`` or ``"pcg"``) for ``pattern``.
 
     ``ordering`` and ``blas_threads`` apply to CHOLMOD (``"auto"``:
-    :func:`posegraph.cholmod.auto_ordering`; ``blas_threads=None`` leaves the BLAS under CHOLMOD
+    :func:`posegraph.linalg.cholmod.auto_ordering`; ``blas_threads=None`` leaves the BLAS under CHOLMOD
     as it is), ``tolerance`` to ``"pcg"``. Asking for ``"cholmod"`` without cvxopt, or ``"pcg"``
     without pyamg, raises ``ImportError`` with the install hint. ``"auto"`` with
     ``factor_needed=False`` turns to ``"pcg"`` when CHOLMOD's factor would not fit in memory
-    (:func:`posegraph.multigrid.factorisation_fits`).
+    (:func:`posegraph.linalg.multigrid.factorisation_fits`).
     """
     if kind == "auto" and not factor_needed and cholmod_available() and not multigrid.factorisation_fits(
         pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering

@@ -29,7 +29,7 @@ from functools import cached_property
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.solve import residuals as _residuals
 from posegraph.solve.residuals import edge_errors, residual_jacobian_factors
 

@@ -18,7 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.solve.linearize import EdgeBlocks, linearize
 from posegraph.solve.residuals import edge_errors, squared_norms, weighted_cost
 from posegraph.solve.unary import PriorErrors, linearize_priors, prior_errors, prior_squared_norms

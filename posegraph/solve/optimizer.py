@@ -30,7 +30,7 @@ last one, or already within the tolerances) and the cost confirms it (gain ratio
 kept for the iteration after. Measured effects: ``docs/solver.md``.
 
 Gauge: fixed vertices and the anchor of every component without one and without priors
-(:func:`posegraph.graph.held_vertices`) have no variables at all, so the cost is exactly the
+(:func:`posegraph.model.graph.held_vertices`) have no variables at all, so the cost is exactly the
 graph's, with no prior added. The graph's own priors (unary edges, :mod:`posegraph.solve.unary`)
 are terms of the cost like the edges.
 """
@@ -43,7 +43,7 @@ from functools import cached_property
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, held_vertices
+from posegraph.model.graph import PoseGraph, held_vertices
 from posegraph.solve.clock import PhaseClock
 from posegraph.solve.linear import NotPositiveDefiniteError, make_linear_solver
 from posegraph.solve.objective import Evaluation, Objective
@@ -79,7 +79,7 @@ class Analysis:
     edge_to: np.ndarray
     """``(m,)`` the edges' second vertices."""
     held: np.ndarray
-    """``(n,)`` bool, vertices without variables (:func:`posegraph.graph.held_vertices`)."""
+    """``(n,)`` bool, vertices without variables (:func:`posegraph.model.graph.held_vertices`)."""
     pattern: HessianPattern
     """Block pattern of H (:func:`posegraph.solve.sparsity.analyze_pattern`)."""
     solver: object

@@ -136,29 +136,29 @@ class SolverParams:
 
     linear_solver: str = "auto"
     """Sparse solver for the normal equations (:func:`posegraph.solve.linear.make_linear_solver`):
-    ``"cholmod"`` (CHOLMOD's supernodal Cholesky from the cvxopt wheel, :mod:`posegraph.cholmod`;
+    ``"cholmod"`` (CHOLMOD's supernodal Cholesky from the cvxopt wheel, :mod:`posegraph.linalg.cholmod`;
     symbolic analysis once per graph), ``"scipy"`` (SuperLU without pivoting in symmetric mode;
     needs only scipy), ``"pcg"`` (no factorisation: conjugate gradients preconditioned by
     aggregation multigrid, pyamg; memory linear in the graph, for graphs whose factor
-    would not fit: :mod:`posegraph.multigrid`), or ``"auto"`` (CHOLMOD when cvxopt imports, else
+    would not fit: :mod:`posegraph.linalg.multigrid`), or ``"auto"`` (CHOLMOD when cvxopt imports, else
     scipy). Figures in ``docs/cholesky.md`` and ``docs/benchmarks.md`` ("Memory per pose")."""
 
     linear_tolerance: float = 1e-8
-    """``"pcg"``: the tightest relative residual ‖b − Ax‖/‖b‖ CG is asked for (:data:`posegraph.multigrid.DEFAULT_TOLERANCE`);
+    """``"pcg"``: the tightest relative residual ‖b − Ax‖/‖b‖ CG is asked for (:data:`posegraph.linalg.multigrid.DEFAULT_TOLERANCE`);
     looser while LM is far from converged (Eisenstat–Walker forcing, :class:`posegraph.solve.linear.MultigridSolver`).
     Ignored by the direct solvers."""
 
     ordering: str = "auto"
-    """Fill-reducing ordering for ``"cholmod"`` (:data:`posegraph.cholmod.ORDERINGS`): ``"amd"``
+    """Fill-reducing ordering for ``"cholmod"`` (:data:`posegraph.linalg.cholmod.ORDERINGS`): ``"amd"``
     or ``"nesdis"`` (= ``"metis"``: METIS nested dissection through pymetis), both of the vertex
     graph; ``"natural"``; ``"default"`` (CHOLMOD's own AMD of the scalar pattern); or ``"auto"``:
     AMD below 10,000 free vertices, nested dissection from there on (measured fastest on pose
-    graphs: :data:`posegraph.cholmod.NESTED_DISSECTION_VERTICES`, ``docs/cholesky.md``). Ignored
+    graphs: :data:`posegraph.linalg.cholmod.NESTED_DISSECTION_VERTICES`, ``docs/cholesky.md``). Ignored
     by ``"scipy"``."""
 
     blas_threads: Optional[int] = 1
     """Threads of the OpenBLAS cvxopt bundles under CHOLMOD during its factorisations and solves,
-    restored afterwards (:mod:`posegraph.native_threads`, through threadpoolctl). cvxopt's CHOLMOD
+    restored afterwards (:mod:`posegraph.linalg.native_threads`, through threadpoolctl). cvxopt's CHOLMOD
     has no OpenMP, and the Linux x86_64 wheel's OpenBLAS is single-threaded, so there this changes
     nothing; it caps a threaded build (other platforms' wheels). None leaves the BLAS as it is.
     Measured on the system OpenBLAS of an earlier backend, 2-core machine: one thread factorised

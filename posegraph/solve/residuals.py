@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 
 __all__ = ["edge_residuals", "cost", "weighted_cost", "squared_norms", "edge_jacobians", "edge_errors", "residual_jacobian_factors"]
 

@@ -17,7 +17,7 @@ in the CSC ``data`` array of every entry of every edge's blocks ``H_ii``,
 slot past the end, which is dropped.
 
 numpy only: no scipy.sparse here (its import costs ~0.1 s per process, see
-:mod:`posegraph.cholmod`); :func:`lower_csc` builds a scipy matrix on request.
+:mod:`posegraph.linalg.cholmod`); :func:`lower_csc` builds a scipy matrix on request.
 
 Variables: vertex ``k`` is *free* unless ``held[k]``; free vertices are
 numbered ``0..p-1`` in vertex order and vertex ``k``'s tangent occupies rows

@@ -1,4 +1,4 @@
-"""Residuals, Jacobians and normal-equation blocks of the unary edges (priors, :mod:`posegraph.priors`).
+"""Residuals, Jacobians and normal-equation blocks of the unary edges (priors, :mod:`posegraph.model.priors`).
 
 Priors are few (a GNSS fix every few poses), so they have their own small arrays, linearised
 alongside the binary edges and added into the same ``g`` and H: each touches only the diagonal

@@ -225,7 +225,7 @@ def test_pose_priors_put_the_certified_estimate_in_the_world_frame(group):
     the poses of the truth itself, not of a rigid motion of it."""
     import dataclasses
 
-    from posegraph.priors import Priors
+    from posegraph.model.priors import Priors
 
     graph, truth = loop_graph(11, n=20, loops=12, group=group)
     k = group.matrix_size

@@ -118,7 +118,7 @@ def test_pose_priors_are_edges_from_a_world_vertex(group):
     import dataclasses
 
     from posegraph.certification.certificate import isotropic_graph
-    from posegraph.graph import PoseGraph
+    from posegraph.model.graph import PoseGraph
     from posegraph.solve.residuals import cost
     from posegraph.solve.unary import prior_cost
     from tests.solve.test_unary import chain_graph, make_priors

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.certification.certificate import Budget, certify, verify_point
+from posegraph.certification.certificate import certify
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import objective, sync_problem
 from posegraph.certification.staircase import riemannian_staircase, round_solution
-from posegraph.certification.verify import data_scale
+from posegraph.certification.verify import Budget, data_scale, verify_point
 from posegraph.lie.group import SE3
 from tests.certification.graphs import loop_graph
 from tests.init.synthetic import random_rotations

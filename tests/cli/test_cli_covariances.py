@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph.covariance import marginal_covariances
-from posegraph.graph import held_vertices
+from posegraph.analysis.covariance import marginal_covariances
+from posegraph.model.graph import held_vertices
 from posegraph.io.g2o import read_g2o
 from tests.cli.conftest import assert_one_error_line, run_cli
 
@@ -65,7 +65,7 @@ def test_plot_draws_every_kth_ellipse_on_a_top_view(optimized, tmp_path):
     from matplotlib.image import imread
 
     from posegraph.cli.plot import read_covariances
-    from posegraph.plot import trajectory_figure
+    from posegraph.analysis.plot import trajectory_figure
 
     _, out, cov = optimized
     graph = read_g2o(out)
@@ -91,7 +91,7 @@ def test_ellipse_axes_follow_the_world_frame_position_covariance():
     from matplotlib.figure import Figure
 
     from posegraph.lie import se3
-    from posegraph.plot import draw_uncertainty_ellipses, planar_translation_covariances
+    from posegraph.analysis.plot import draw_uncertainty_ellipses, planar_translation_covariances
 
     pose = se3.exp(np.array([0.0, 0.0, np.pi / 2, 1.0, 2.0, 0.0]))  # a quarter turn about z
     covariance = np.zeros((6, 6))
@@ -147,7 +147,7 @@ def test_covariances_take_the_gauge_of_fix(tmp_path, shared_dataset):
 def test_planar_position_covariance_of_an_se2_pose():
     """SE(2): ``[v_x, v_y, ω]``, the first two entries rotated to the world frame."""
     from posegraph.lie import se2
-    from posegraph.plot import planar_translation_covariances
+    from posegraph.analysis.plot import planar_translation_covariances
 
     pose = se2.from_xytheta(np.array([1.0, 2.0, np.pi / 2]))
     covariance = np.array([[4.0, 0.0, 0.3], [0.0, 1.0, 0.0], [0.3, 0.0, 0.5]])

@@ -33,7 +33,7 @@ def read_quietly(path, **options):
 
 def test_optimize_gtsams_sphere2500_txt_reaches_gtsams_optimum(tmp_path, gtsam_example_file):
     """No vertex lines: the chordal start (the default) works, and LM ends at gtsam's final cost."""
-    from posegraph.gtsam_bridge import run_gtsam
+    from posegraph.crosscheck.gtsam_bridge import run_gtsam
     from posegraph.solve.residuals import cost
 
     source = gtsam_example_file("sphere2500.txt")
@@ -66,7 +66,7 @@ def test_a_trajectory_command_refuses_a_file_without_vertices(tmp_path, gtsam_ex
 
 
 def test_optimize_cubicle_only_with_repair(tmp_path, shared_dataset):
-    from posegraph.gtsam_bridge import run_gtsam
+    from posegraph.crosscheck.gtsam_bridge import run_gtsam
     from posegraph.solve.residuals import cost
 
     source = shared_dataset("cubicle")

@@ -52,7 +52,7 @@ def test_rigidly_moved_ground_truth_has_zero_ate(tmp_path, shared_dataset):
 
 def test_sphere2500_against_gtsams_ground_truth(tmp_path, shared_dataset, gtsam_example_file):
     """The optimised sphere is far closer to the ground truth than the file's (odometry) poses."""
-    from posegraph.evaluate import evaluate, read_trajectory
+    from posegraph.analysis.evaluate import evaluate, read_trajectory
     from posegraph.io.g2o import read_g2o, write_g2o
     from posegraph.solve import optimize
 

@@ -80,7 +80,7 @@ def test_the_console_script_entry_point_is_the_packaged_program(capsys):
 
 def test_info_figures_match_gtsam_and_the_graph(shared_dataset):
     gtsam = pytest.importorskip("gtsam")
-    from posegraph.graph import connected_components
+    from posegraph.model.graph import connected_components
     from posegraph.io.g2o import read_g2o
 
     path = shared_dataset("parking-garage")

@@ -22,7 +22,7 @@ def missing(name, hint):
 
 
 def test_missing_gtsam_says_how_to_install(monkeypatch, capsys, shared_dataset):
-    import posegraph.gtsam_bridge as bridge
+    import posegraph.crosscheck.gtsam_bridge as bridge
 
     monkeypatch.setattr(bridge, "require_gtsam", missing("gtsam", bridge.INSTALL_HINT))
     assert cli.main(["compare", str(shared_dataset("tinyGrid3D"))]) == 2
@@ -32,7 +32,7 @@ def test_missing_gtsam_says_how_to_install(monkeypatch, capsys, shared_dataset):
 
 
 def test_missing_open3d_says_how_to_install(monkeypatch, capsys, tmp_path, shared_dataset):
-    import posegraph.export_open3d as export
+    import posegraph.io.export_open3d as export
 
     monkeypatch.setattr(export, "require_open3d", missing("Open3D", export.INSTALL_HINT))
     status = cli.main(["export", str(shared_dataset("tinyGrid3D")), "--open3d", str(tmp_path / "g.json")])
@@ -43,7 +43,7 @@ def test_missing_open3d_says_how_to_install(monkeypatch, capsys, tmp_path, share
 
 
 def test_missing_matplotlib_is_found_before_any_work(monkeypatch, capsys, tmp_path, shared_dataset):
-    import posegraph.plot as plot
+    import posegraph.analysis.plot as plot
 
     monkeypatch.setattr(plot, "require_matplotlib", missing("matplotlib", 'pip install "posegraph[plot]"'))
     out = tmp_path / "out.g2o"
@@ -73,7 +73,7 @@ def test_a_bug_is_one_line_with_a_hint_and_its_traceback_under_debug(monkeypatch
 
 def test_interrupt_while_writing_leaves_nothing(monkeypatch, capsys, tmp_path, shared_dataset):
     """Ctrl-C after the result is staged but while the report is written: no output at all."""
-    import posegraph.report as report
+    import posegraph.analysis.report as report
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

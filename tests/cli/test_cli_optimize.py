@@ -241,13 +241,13 @@ def test_pcg_without_pyamg_is_one_line_saying_what_to_install(tmp_path, shared_d
 
 
 # The process sees 1 kB of free memory, so that no Cholesky factor fits.
-NO_MEMORY = ("import sys; import posegraph.heap as heap; heap.available_bytes = lambda: 1000; {hide}"
+NO_MEMORY = ("import sys; import posegraph.linalg.heap as heap; heap.available_bytes = lambda: 1000; {hide}"
              "from posegraph.cli import main; sys.exit(main(['optimize', {source!r}, '-o', {output!r}, '--report', {report!r}, '-q']))")  # fmt: skip
 
 
 def test_auto_solves_by_pcg_when_the_factor_would_not_fit(tmp_path, shared_dataset):
     pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if cholmod.load() is None:
         pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")
@@ -265,7 +265,7 @@ def test_auto_solves_by_pcg_when_the_factor_would_not_fit(tmp_path, shared_datas
 
 
 def test_auto_without_pyamg_when_the_factor_would_not_fit_is_one_line_and_no_output(tmp_path, shared_dataset):
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if cholmod.load() is None:
         pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")

@@ -273,7 +273,7 @@ def test_a_full_disk_while_writing_the_result_names_it(tmp_path, graph, monkeypa
 def test_a_full_disk_while_writing_the_report_names_it(tmp_path, graph, monkeypatch, capsys):
     import builtins
 
-    import posegraph.atomic as atomic
+    import posegraph.io.atomic as atomic
 
     class Full:
         """A text file whose writes fail as on a full disk."""
@@ -310,7 +310,7 @@ def test_a_full_disk_while_writing_the_report_names_it(tmp_path, graph, monkeypa
 
 CHILD = """
 import os, sys, time
-import posegraph.atomic as atomic
+import posegraph.io.atomic as atomic
 
 hook, argv = sys.argv[1], sys.argv[2:]
 if hook == "mid-write":  # the result's temporary file is complete, the report is being made

@@ -36,7 +36,7 @@ def test_unwritable_output_folder_is_found_before_solving_and_named_as_given(sha
 
 
 def test_staged_outputs_name_the_destination_not_the_temporary_file(tmp_path):
-    from posegraph.atomic import StagedOutputs
+    from posegraph.io.atomic import StagedOutputs
     from posegraph.errors import OutputError
 
     with StagedOutputs() as outputs, pytest.raises(OutputError) as missing_folder:
@@ -54,7 +54,7 @@ def test_staged_outputs_name_the_destination_not_the_temporary_file(tmp_path):
 
 def test_a_failing_figure_is_a_warning_and_the_result_is_kept(monkeypatch, capsys, tmp_path, shared_dataset):
     pytest.importorskip("matplotlib")
-    import posegraph.plot as plot
+    import posegraph.analysis.plot as plot
     from posegraph.io.g2o import read_g2o
 
     def broken(*args, **kwargs):

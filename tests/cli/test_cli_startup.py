@@ -30,7 +30,7 @@ def test_solver_imports_leave_out_what_the_default_path_does_not_use():
         import gc, os, sys
         from posegraph.cli import startup
         startup.single_threaded_blas()  # before numpy loads, as import_solver_modules does first
-        from posegraph import cholmod
+        from posegraph.linalg import cholmod
         cholmod.load = lambda: None  # the path without cvxopt (SuperLU), which imports scipy.sparse
         startup.import_solver_modules()
         unused = ["numpy.f2py", "numpy.testing", "numpy.ma", "numpy.polynomial", "scipy.sparse.csgraph",
@@ -56,7 +56,7 @@ def test_solver_imports_leave_out_what_the_default_path_does_not_use():
 
 
 def test_with_cvxopt_cholmod_a_whole_run_imports_no_scipy(tmp_path, shared_dataset):
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if cholmod.load() is None:
         pytest.skip(f"CHOLMOD is not available: {cholmod.unavailable_reason()}")

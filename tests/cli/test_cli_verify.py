@@ -1,4 +1,4 @@
-"""`posegraph verify-jacobians` end to end (the checks themselves are tested in tests/test_verify.py)."""
+"""`posegraph verify-jacobians` end to end (the checks themselves are tested in tests/crosscheck/test_jacobians.py)."""
 
 from __future__ import annotations
 

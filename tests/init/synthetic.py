@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.graph import PoseGraph, component_anchors, connected_components
+from posegraph.model.graph import PoseGraph, component_anchors, connected_components
 from posegraph.lie import se3, so3
 from posegraph.lie.group import SE2, SE3
 

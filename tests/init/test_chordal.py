@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from posegraph.errors import GraphError
-from posegraph.graph import PoseGraph, component_anchors
+from posegraph.model.graph import PoseGraph, component_anchors
 from posegraph.init import (
     chordal_initialization,
     chordal_rotations,
@@ -24,7 +24,7 @@ from posegraph.solve.residuals import cost
 
 from . import synthetic
 
-from posegraph import cholmod
+from posegraph.linalg import cholmod
 
 GRAPHS = [*synthetic.noise_free_cases(), ("all-of-it, seed 11", *synthetic.hard_graph(11, noise=False))]
 
@@ -51,7 +51,7 @@ def test_noise_free_measurements_give_the_truth_through_cholmod(name, graph, tru
 @pytest.mark.parametrize("name, graph, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
 def test_noise_free_measurements_give_the_truth_through_pcg(name, graph, truth, monkeypatch):
     pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
 
     monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)  # coarse levels even on a small graph
     poses = chordal_initialization(graph, linear_solver="pcg")
@@ -61,7 +61,7 @@ def test_noise_free_measurements_give_the_truth_through_pcg(name, graph, truth, 
 
 def test_auto_turns_to_pcg_when_the_factor_would_not_fit(monkeypatch, cholmod_backend):
     pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
-    from posegraph import heap, multigrid
+    from posegraph.linalg import heap, multigrid
     from posegraph.errors import PosegraphWarning
     from posegraph.init.chordal import chordal_problem
 
@@ -82,9 +82,9 @@ def test_auto_turns_to_pcg_when_the_factor_would_not_fit(monkeypatch, cholmod_ba
 
 
 def test_cholmod_thread_setting_changes_nothing_but_speed(cholmod_backend):
-    """RelativeLeastSquares runs CHOLMOD with one thread by default (posegraph.native_threads); any
+    """RelativeLeastSquares runs CHOLMOD with one thread by default (posegraph.linalg.native_threads); any
     setting gives the same solution, and a nonsense one is refused."""
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
     from posegraph.init.linear_system import RelativeLeastSquares
 
     graph, truth = synthetic.noise_free_graph(16, n=600, loops=300)
@@ -229,7 +229,7 @@ def test_rotation_weights_are_the_mean_rotational_information_in_the_chordal_sta
 def _gtsam_lm_cost(graph, start) -> float:
     """gtsam's LM from ``start`` (gauge priors on our held vertices), tolerances 1e-14: a reference optimum."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import gtsam_reference_cost
+    from posegraph.crosscheck.gtsam_bridge import gtsam_reference_cost
 
     return gtsam_reference_cost(graph, start)
 
@@ -333,7 +333,7 @@ def _gtsam_initialize(factors, anchor: int, anchor_pose: np.ndarray):
 def _gtsam_initialize_cost(graph):
     """gtsam's start cost (without the prior) and poses for one of our graphs."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import graph_to_gtsam, values_to_poses
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, values_to_poses
 
     factors = graph_to_gtsam(graph)
     anchor = int(component_anchors(graph)[0])

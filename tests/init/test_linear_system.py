@@ -73,7 +73,7 @@ def test_restricted_solve_equals_the_problem_of_the_counted_edges(linear_solver)
 
 
 def test_every_ordering_gives_the_same_solution_and_a_bad_name_is_refused():
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     rng = np.random.default_rng(4)
     edge_from, edge_to, transfer, weight, offset, values = _random_problem(rng)
@@ -96,7 +96,7 @@ def test_every_ordering_gives_the_same_solution_and_a_bad_name_is_refused():
 def test_a_cholmod_failure_is_raised_when_cholmod_was_asked_for_and_falls_back_only_under_auto(monkeypatch):
     """CHOLMOD's factorisation forced to fail (as at round-off level when weights span many decades):
     ``"cholmod"`` named explicitly raises it; ``"auto"`` turns to SuperLU and gives its solution."""
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
     from posegraph.init.linear_system import NotPositiveDefiniteError
 
     if cholmod.load() is None:

@@ -7,7 +7,7 @@ import pytest
 from scipy.sparse import csgraph, csr_matrix
 
 from posegraph.errors import GraphError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init import held_vertices, initialize, odometry_initialization, spanning_tree
 from posegraph.init.weights import rotation_weights
 from posegraph.lie import se3

@@ -7,11 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.init import initialize
 from posegraph.init.chordal import translations_given_rotations
 from posegraph.init.scales import log_scales, rotation_blocks
-from posegraph.graph import held_vertices
+from posegraph.model.graph import held_vertices
 from posegraph.lie import sim3
 from posegraph.lie.group import SIM3
 from posegraph.solve.residuals import cost, edge_residuals

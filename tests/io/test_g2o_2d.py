@@ -155,7 +155,7 @@ def test_vertices_without_edges(text_file):
 def test_cost_equals_gtsam_graph_error(dataset, shared_dataset):
     """Our cost at two sets of poses equals ``graph.error`` of the graph ``gtsam.readG2o(is3D=False)`` builds."""
     gtsam = pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import poses_to_values
     from posegraph.init import initialize
 
     path = shared_dataset(dataset)

@@ -125,7 +125,7 @@ def test_edge3_information_is_read_unpermuted(gtsam_example_file):
 
 def test_edge3_ground_truth_chains_like_the_gtsam_path_of_evaluate(gtsam_example_file):
     """Chaining our reader's odometry edges gives the trajectory ``read_trajectory`` builds with gtsam."""
-    from posegraph.evaluate import chain_odometry, read_trajectory
+    from posegraph.analysis.evaluate import chain_odometry, read_trajectory
 
     path = gtsam_example_file("sphere2500_groundtruth.txt")
     graph, _ = read_with_warnings(path)

@@ -111,7 +111,7 @@ def test_bad_prior_lines_are_refused_with_file_and_line(text_file, line, error, 
 
 
 def test_a_single_position_prior_is_accepted_with_a_warning_that_a_rotation_stays_free(text_file):
-    from posegraph.graph import held_vertices
+    from posegraph.model.graph import held_vertices
     from posegraph.solve.optimizer import optimize
 
     text = CHAIN + "\nPARAMS_SE3OFFSET 0 0 0 0 0 0 0 1\nEDGE_SE3_XYZ_PRIOR 2 0 4 5 6 1 0 0 1 0 1\n"

@@ -46,7 +46,7 @@ def test_position_prior_chi2_equals_g2o(shared_dataset, tmp_path, name, planar):
     assert sorted(theirs) == sorted(ids)
     np.testing.assert_allclose(ours, [theirs[i] for i in ids], rtol=1e-10, atol=1e-12)
     # the optimum of the graph as written reaches gtsam's best on the same factors (no vertex held)
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values
     from posegraph.init import initialize
     from posegraph.solve.optimizer import optimize
 

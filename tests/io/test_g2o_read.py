@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from posegraph.errors import InputWarning
-from posegraph.graph import connected_components
+from posegraph.model.graph import connected_components
 from posegraph.io.g2o import read_g2o
 from tests.conftest import INDEFINITE_INFORMATION
 

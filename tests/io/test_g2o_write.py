@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from posegraph.errors import InputWarning, OutputError
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o import format_g2o, read_g2o, write_g2o
 from tests.conftest import INDEFINITE_INFORMATION
 
@@ -286,7 +286,7 @@ def test_graph_built_in_memory_has_no_source_and_writes_anywhere(tmp_path):
     assert_same_graph(read_quietly(tmp_path / "x.g2o"), graph)
 
 
-# --- edges read from a file are written as they were read (posegraph.graph.EdgeSource)
+# --- edges read from a file are written as they were read (posegraph.model.graph.EdgeSource)
 
 INFORMATION_TEXT = " ".join(["1e2", "0", "0", "0", "0", "0", "100.0", "0", "0", "0", "0", "1E+2", "0", "0", "0",
                              "400", "0", "0", "4.0e2", "0", "400"])  # fmt: skip

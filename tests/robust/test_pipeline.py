@@ -11,7 +11,7 @@ from posegraph.init.chordal import chordal_initialization, chordal_problem
 from posegraph.robust.active import ActiveEdgeSolves, edge_subgraph
 from posegraph.robust.gnc import GncParams
 from posegraph.robust.pipeline import known_inlier_mask, optimize_robust
-from posegraph.robust.starts import weighted_graph
+from posegraph.robust.measurements import weighted_graph
 from posegraph.solve import SolverParams, analyze, optimize
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from datasets.synthetic import grid, inject_outliers
-from posegraph.priors import Priors
+from posegraph.model.priors import Priors
 from posegraph.robust.pipeline import optimize_robust
 from posegraph.solve import optimize
 from posegraph.solve.residuals import cost

@@ -14,9 +14,8 @@ from posegraph.robust.starts import (
     downweighted_chordal_start,
     inlier_chain_start,
     robust_chordal_start,
-    squared_residuals,
-    weighted_graph,
 )
+from posegraph.robust.measurements import squared_residuals, weighted_graph
 from posegraph.solve.residuals import edge_residuals
 
 

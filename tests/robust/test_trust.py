@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from datasets.synthetic import grid, inject_outliers, random_relative_poses
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.robust.pipeline import optimize_robust
 from posegraph.robust.trust import (
     contradicted_odometry,
@@ -137,7 +137,7 @@ def test_a_trusted_edge_only_mildly_wrong_is_named_suspicious(clean, strict):
     run without trusting it to fit better (it is neither released nor rejected), yet above the inlier
     test: the final check must name it (at 2 c̄² it would pass unseen)."""
     from posegraph.robust.gnc import GncParams, inlier_thresholds
-    from posegraph.robust.starts import measurement_dimensions, measurement_residuals
+    from posegraph.robust.measurements import measurement_dimensions, measurement_residuals
 
     odometry = np.flatnonzero(clean.odometry_mask())
     k = odometry[len(odometry) // 2]

@@ -11,13 +11,13 @@ def gtsam_graph(path, graph=None):
 
     For a file whose information the reader repairs (``tests.conftest.INDEFINITE_INFORMATION``),
     pass our ``graph`` of it: gtsam then gets its factors with the repaired matrices
-    (:func:`posegraph.gtsam_bridge.graph_to_gtsam`), since ``readG2o`` would replace each indefinite
+    (:func:`posegraph.crosscheck.gtsam_bridge.graph_to_gtsam`), since ``readG2o`` would replace each indefinite
     matrix by RᵀR of a partial Cholesky factor (tests/io/test_against_gtsam.py compares the rest).
     """
     gtsam = pytest.importorskip("gtsam")
     factors, values = gtsam.readG2o(str(path), True)
     if graph is not None and _needs_repair(path):
-        from posegraph.gtsam_bridge import graph_to_gtsam
+        from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam
 
         factors = graph_to_gtsam(graph)
     return factors, values

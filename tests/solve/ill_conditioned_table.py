@@ -33,7 +33,7 @@ def gtsam_optimum(graph, start):
         import gtsam  # noqa: F401
     except ImportError:
         return None
-    from posegraph.gtsam_bridge import gtsam_reference_cost
+    from posegraph.crosscheck.gtsam_bridge import gtsam_reference_cost
 
     return gtsam_reference_cost(graph, start, max_iterations=300)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.lie import se3, so3
 from posegraph.lie.group import SE3, LieGroup
 from posegraph.solve import SolverParams, optimize

@@ -56,7 +56,7 @@ def run(name, start, method, **kwargs):
 def gtsam_lm_cost(graph, start) -> float:
     """gtsam LM from ``start`` at tolerance 1e-14 (gauge priors on our held vertices): edge cost only."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import gtsam_reference_cost
+    from posegraph.crosscheck.gtsam_bridge import gtsam_reference_cost
 
     return gtsam_reference_cost(graph, start, max_iterations=300)
 

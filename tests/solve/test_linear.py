@@ -146,7 +146,7 @@ def test_shift_is_added_to_the_diagonal_and_data_left_unchanged(kind):
 
 
 def test_pcg_without_pyamg_says_what_to_install(monkeypatch):
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
 
     monkeypatch.setattr(multigrid, "available", lambda: False)
     with pytest.raises(ImportError, match=r"posegraph\[large\]"):
@@ -192,7 +192,7 @@ def test_vertex_ordering_is_a_permutation_of_free_vertices():
 
 
 def test_auto_ordering_is_amd_for_small_systems_and_nested_dissection_from_the_threshold(monkeypatch, cholmod_backend):
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     pattern, data, full, rhs = spd_system(4)
     assert pattern.num_variables < cholmod.NESTED_DISSECTION_VERTICES
@@ -258,7 +258,7 @@ def test_lm_raises_lambda_when_cholmod_reports_not_positive_definite(monkeypatch
 
 def test_pcg_tightens_its_tolerance_as_the_gradient_falls(multigrid_available, monkeypatch):
     """Eisenstat–Walker forcing: 1e-2 at the first solve, γ(‖b‖/‖b_prev‖)² after, never below the floor."""
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
 
     monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)  # coarse levels, so that CG iterates
     pattern, data, full, rhs = spd_system(9, n=60, m=200)
@@ -277,7 +277,7 @@ def test_pcg_tightens_its_tolerance_as_the_gradient_falls(multigrid_available, m
 
 
 def test_pcg_confirms_convergence_only_after_a_tight_enough_solve(multigrid_available, monkeypatch):
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
 
     monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 12)
     pattern, data, _, rhs = spd_system(10, n=60, m=200)
@@ -293,13 +293,13 @@ def test_pcg_confirms_convergence_only_after_a_tight_enough_solve(multigrid_avai
 
 
 def test_auto_solves_by_pcg_when_the_factor_would_not_fit_and_a_factor_is_not_needed(monkeypatch, multigrid_available):
-    from posegraph import heap
+    from posegraph.linalg import heap
     from posegraph.errors import PosegraphWarning
 
     if not cholmod_available():
         pytest.skip("CHOLMOD (cvxopt) is not installed")
     pattern, data, full, rhs = spd_system(2)
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     foreseen = cholmod.block_factor_bytes(pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size)
     monkeypatch.setattr(heap, "available_bytes", lambda: int(foreseen / heap.FACTOR_MEMORY_SHARE) - 1)
@@ -315,7 +315,7 @@ def test_auto_solves_by_pcg_when_the_factor_would_not_fit_and_a_factor_is_not_ne
 
 
 def test_auto_without_pyamg_says_how_large_the_factor_would_be_and_what_to_install(monkeypatch):
-    from posegraph import heap, multigrid
+    from posegraph.linalg import heap, multigrid
 
     if not cholmod_available():
         pytest.skip("CHOLMOD (cvxopt) is not installed")
@@ -328,7 +328,7 @@ def test_auto_without_pyamg_says_how_large_the_factor_would_be_and_what_to_insta
 
 @pytest.mark.parametrize("ordering", ["auto", "amd", "nesdis", "natural", "default"])
 def test_the_factor_foreseen_from_the_vertex_pattern_bounds_the_scalar_analysis(ordering):
-    from posegraph import cholmod
+    from posegraph.linalg import cholmod
 
     if not cholmod_available():
         pytest.skip("CHOLMOD (cvxopt) is not installed")

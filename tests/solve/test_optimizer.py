@@ -7,7 +7,7 @@ import functools
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o import read_g2o
 from posegraph.lie.group import SE2, SE3
 from posegraph.solve import IterationRecord, OptimizeResult, SolverParams, optimize
@@ -208,7 +208,7 @@ def test_records_are_consistent_and_lm_cost_never_increases():
 @pytest.mark.parametrize("group", GROUPS, ids=lambda g: g.name)
 @pytest.mark.parametrize("max_iterations", [1, 100])
 def test_final_residuals_are_the_residuals_at_the_returned_poses(group, max_iterations):
-    from posegraph.report import chi2_summary
+    from posegraph.analysis.report import chi2_summary
     from posegraph.solve.residuals import edge_residuals
 
     graph = synthetic_graph(6, noise=0.1, group=group)
@@ -451,7 +451,7 @@ PCG_GRAPHS = {
 @pytest.mark.parametrize("name", PCG_GRAPHS)
 def test_pcg_reaches_the_factorisations_optimum(name, monkeypatch):
     pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
-    from posegraph import multigrid
+    from posegraph.linalg import multigrid
 
     monkeypatch.setattr(multigrid, "COARSEST_UNKNOWNS", 24)  # coarse levels even on a small graph
     graph = PCG_GRAPHS[name]()
@@ -475,7 +475,7 @@ def test_pcg_reaches_the_factorisations_optimum_on_standard_files(name, shared_d
 
 def test_auto_turns_to_pcg_when_the_factor_would_not_fit_and_reaches_the_same_optimum(monkeypatch):
     pytest.importorskip("pyamg", reason="pyamg (posegraph[large]) is not installed")
-    from posegraph import cholmod, heap
+    from posegraph.linalg import cholmod, heap
     from posegraph.errors import PosegraphWarning
 
     if cholmod.load() is None:

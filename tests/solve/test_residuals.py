@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph
+from posegraph.model.graph import PoseGraph
 from posegraph.io.g2o import read_g2o
 from posegraph.lie import se3
 from posegraph.solve.residuals import cost, edge_residuals

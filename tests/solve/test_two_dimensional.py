@@ -41,7 +41,7 @@ def test_chordal_start_is_close_to_the_optimum_and_to_lago_or_better(dataset, sh
     """Measured: intel 23.658 (LAGO 23.108), manhattan 1793.92 (LAGO 228,672: LAGO only sees the
     diagonal of manhattan's coupled x-y information); the optimum 22.502 and 1774.52."""
     pytest.importorskip("gtsam")
-    from posegraph.gtsam_bridge import run_gtsam
+    from posegraph.crosscheck.gtsam_bridge import run_gtsam
 
     graph = read(shared_dataset, dataset)
     ours = cost(graph, initialize(graph, "chordal"))

@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posegraph.graph import PoseGraph, component_anchors, held_vertices
+from posegraph.model.graph import PoseGraph, component_anchors, held_vertices
 from posegraph.lie import se2, se3
 from posegraph.lie.group import SE2, SE3
-from posegraph.priors import Priors
+from posegraph.model.priors import Priors
 from posegraph.robust.losses import make_loss
 from posegraph.solve.objective import Objective
 from posegraph.solve.optimizer import optimize
@@ -114,7 +114,7 @@ def test_jacobians_match_central_differences(group):
 @pytest.mark.parametrize("group", GROUPS)
 def test_normal_equation_blocks_equal_gtsam_linearisation(group):
     """``JᵀΩJ`` and ``JᵀΩe`` of every prior equal gtsam's whitened ``AᵀA`` and ``−Aᵀb``."""
-    from posegraph.gtsam_bridge import poses_to_values, prior_factors
+    from posegraph.crosscheck.gtsam_bridge import poses_to_values, prior_factors
 
     rng = np.random.default_rng(4)
     graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
@@ -129,7 +129,7 @@ def test_normal_equation_blocks_equal_gtsam_linearisation(group):
 
 @pytest.mark.parametrize("group", GROUPS)
 def test_cost_equals_gtsam_graph_error(group):
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values
 
     rng = np.random.default_rng(5)
     graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
@@ -160,7 +160,7 @@ def test_priors_replace_the_anchor_of_the_component_they_reach(group):
 @pytest.mark.parametrize("group", GROUPS)
 def test_graph_anchored_only_by_priors_reaches_gtsam_optimum(group):
     """No vertex held: the optimum is where the priors put the graph, as gtsam's LM on the same factors finds."""
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values, values_to_poses
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values, values_to_poses
 
     rng = np.random.default_rng(7)
     graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
@@ -218,8 +218,8 @@ def test_robust_loss_downweights_a_wrong_prior():
 @pytest.mark.parametrize("group", GROUPS)
 def test_marginal_covariances_equal_gtsam_with_priors_only(group):
     """No vertex held: the priors make H invertible, and the marginals are gtsam's ``Marginals``."""
-    from posegraph.covariance import marginal_covariances
-    from posegraph.gtsam_bridge import graph_to_gtsam, poses_to_values
+    from posegraph.analysis.covariance import marginal_covariances
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam, poses_to_values
 
     rng = np.random.default_rng(10)
     graph = chain_graph(rng, group, priors=make_priors(rng, group, 6))
