@@ -281,8 +281,6 @@ def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verificatio
 def _level(problem, start, data, budget, anchor, result: StaircaseResult, best_rounded, settings=((None, None), None)):
     """One level from ``start``: the trust region, the rounding (the best kept), the test of Q − Λ (the best
     bound kept in ``result``); ``(point, its Verification, best rounding so far)``."""
-    from posegraph.certification.certificate import verify_point
-
     tolerances, iterations = settings
     u = trust_region(problem, start, data, tolerances=tolerances,
                      max_iterations=MAX_TRUST_REGION_ITERATIONS if iterations is None else iterations)
