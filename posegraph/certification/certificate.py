@@ -37,6 +37,13 @@ from posegraph.model.graph import PoseGraph
 __all__ = ["Certificate", "certify", "isotropic_graph", "candidate_poses", "poses_to_blocks", "blocks_to_poses"]
 
 
+CANDIDATE_NEWTON_ITERATIONS = 20
+"""Newton steps at most from the candidate (1–3 on every benchmark file): where F's landscape is so
+indefinite that Newton crawls (the noisy grids: 100 steps, 0.4–1.3 s), the rank-d test fails anyway
+and the staircase's trust region, made for such landscapes, takes over; its best rounding is then
+refined with the full :data:`~posegraph.certification.local.MAX_NEWTON_ITERATIONS`."""
+
+
 @dataclass
 class Certificate:
     """What :func:`certify` found (the report of ``posegraph certify``); sums and extremes over the components."""
@@ -159,7 +166,7 @@ def _certify_component(problem, group, world, poses, solve, staircase, max_rank,
     u = poses_to_blocks(np.asarray(poses, dtype=np.float64))
     if solve:
         start = time.perf_counter()
-        u = refine_poses(problem, u, anchor)[0]
+        u = refine_poses(problem, u, anchor, CANDIDATE_NEWTON_ITERATIONS)[0]
         _add(seconds, "refine", start)
     u[:, :, 0] = translations_given_rotations(problem, u[:, :, 1:], anchor)
     value = objective(problem, u)
