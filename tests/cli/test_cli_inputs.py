@@ -98,27 +98,26 @@ def test_a_gzip_bomb_ends_in_one_line_and_bounded_memory(tmp_path, name, byte, m
     assert sorted(os.listdir(tmp_path)) == [name]
 
 
-def test_a_fifo_of_blank_lines_is_read_to_its_end_at_constant_memory(tmp_path, fifo):
-    """``yes '' > fifo``, stopped after 512 MiB: every blank line read, none kept."""
-    feeder = FifoFeeder(fifo, b"\n" * (1 << 20), EXPANDED >> 20)
+def _optimize_fed(fifo, out, piece: bytes, count: int | None):
+    """``(run, feeder)``: ``optimize`` reading the FIFO while a :class:`FifoFeeder` writes into it, stopped after."""
+    feeder = FifoFeeder(fifo, piece, count)
     feeder.start()
     try:
-        run = run_capped("optimize", fifo, "-o", tmp_path / "out.g2o")
+        return run_capped("optimize", fifo, "-o", out), feeder
     finally:
         feeder.stop.set()
         feeder.join(10)
+
+
+def test_a_fifo_of_blank_lines_is_read_to_its_end_at_constant_memory(tmp_path, fifo):
+    """``yes '' > fifo``, stopped after 512 MiB: every blank line read, none kept."""
+    run, feeder = _optimize_fed(fifo, tmp_path / "out.g2o", b"\n" * (1 << 20), EXPANDED >> 20)
     assert feeder.written == EXPANDED  # the reader took it all, to the end
     assert_one_error_line(run, str(fifo), "there is no pose graph to read")
     assert sorted(os.listdir(tmp_path)) == ["feed.g2o"]
 
 
 def test_an_endless_fifo_of_zeros_is_refused_at_its_first_block(tmp_path, fifo):
-    feeder = FifoFeeder(fifo, b"\0" * (1 << 16), None)
-    feeder.start()
-    try:
-        run = run_capped("optimize", fifo, "-o", tmp_path / "out.g2o")
-    finally:
-        feeder.stop.set()
-        feeder.join(10)
+    run, _ = _optimize_fed(fifo, tmp_path / "out.g2o", b"\0" * (1 << 16), None)
     assert_one_error_line(run, str(fifo), "not a text g2o file (it holds binary data)")
     assert sorted(os.listdir(tmp_path)) == ["feed.g2o"]
