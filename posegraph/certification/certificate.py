@@ -147,9 +147,8 @@ class _Part:
 
     u: np.ndarray
     value: float
-    lambdas_trace: float
     check: Verification
-    lower_bound: float
+    """The test that proved the component's best lower bound (``check.lower_bound``, ``check.dual_bound``)."""
     rank: int
     budget: Budget
 
@@ -171,17 +170,16 @@ def _certify_component(problem, group, world, poses, solve, staircase, max_rank,
     u[:, :, 0] = translations_given_rotations(problem, u[:, :, 1:], anchor)
     value = objective(problem, u)
     start = time.perf_counter()
-    lambdas, check = verify_point(problem, u, value, budget, anchor)
+    check = verify_point(problem, u, value, budget, anchor)
     _add(seconds, "verify", start)
-    part = _Part(u, value, float(np.trace(lambdas, axis1=1, axis2=2).sum()), check, check.lower_bound, problem.d, budget)
-    if solve and staircase and value - part.lower_bound > budget.allowed(value):
+    part = _Part(u, value, check, problem.d, budget)
+    if solve and staircase and value - check.lower_bound > budget.allowed(value):
         from posegraph.certification.staircase import riemannian_staircase
 
         start = time.perf_counter()
         found = riemannian_staircase(problem, u, check, budget, max_rank, anchor)
         _add(seconds, "staircase", start)
-        part = _Part(found.best, found.best_value, found.trace, found.verification, found.lower_bound, found.rank,
-                     budget)  # fmt: skip
+        part = _Part(found.best, found.best_value, found.verification, found.rank, budget)
     return part
 
 
@@ -233,7 +231,7 @@ def _output_gauge(graph: PoseGraph, vertices: np.ndarray, has_world: bool) -> tu
 def _certificate(parts: list[_Part], eta: float, seconds: dict, poses: np.ndarray) -> Certificate:
     """Sum the components' figures and state the verdict (module docstring)."""
     value = sum(p.value for p in parts)
-    lower = sum(p.lower_bound for p in parts)
+    lower = sum(p.check.lower_bound for p in parts)
     allowed = sum(p.budget.allowed(p.value) for p in parts)
     gap = value - lower
     worst = min(parts, key=lambda p: p.check.min_eigenvalue)
@@ -248,7 +246,7 @@ def _certificate(parts: list[_Part], eta: float, seconds: dict, poses: np.ndarra
     return Certificate(
         certified=bool(certified), sesync_objective=float(value), lower_bound=float(lower), suboptimality_bound=float(gap),
         relative_suboptimality=float(gap / value) if value > 0 else float("inf"),
-        dual_bound=float(sum(p.lambdas_trace for p in parts)), min_eigenvalue=float(worst.check.min_eigenvalue),
+        dual_bound=float(sum(p.check.dual_bound for p in parts)), min_eigenvalue=float(worst.check.min_eigenvalue),
         eigenvalue_residual=float(worst.check.residual), proven_min_eigenvalue=float(-worst.check.proven_shift),
         rank=max(p.rank for p in parts), eta=float(eta), status=status, components=len(parts), seconds=seconds,
         poses=poses,

@@ -27,7 +27,7 @@ import numpy as np
 
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import SyncProblem, edge_maps, objective
-from posegraph.certification.verify import Verification, certificate_matrix, lambda_blocks, verify_point
+from posegraph.certification.verify import Verification, certificate_matrix, verify_point
 from posegraph.solve.linear import make_linear_solver
 
 __all__ = ["StaircaseResult", "DataMatrix", "riemannian_staircase", "round_solution", "trust_region"]
@@ -62,16 +62,17 @@ class StaircaseResult:
     Newton when that is lower — never worse than the start."""
     best_value: float
     """``F`` at :attr:`best`."""
-    lower_bound: float
-    """The largest lower bound any level proved (:attr:`Verification.lower_bound`)."""
-    trace: float
-    """``tr Λ`` of the level that proved it."""
     verification: Verification
-    """That level's test of Q − Λ."""
+    """The test of Q − Λ that proved the largest lower bound (the start's, or a level's)."""
     rank: int
     """The last rank r reached."""
     levels: list = field(default_factory=list)
     """Per level ``(rank, F at the critical point, F of its rounding, lower bound, θ)``."""
+
+    @property
+    def lower_bound(self) -> float:
+        """The largest lower bound any level proved (:attr:`Verification.lower_bound`)."""
+        return self.verification.lower_bound
 
 
 def _project(u: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -256,7 +257,7 @@ def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verificatio
     :class:`~posegraph.certification.verify.Budget`: no higher rank can raise the bound by more),
     an escape fails, or rank ``max_rank``. Each level's point is rounded; the best rounding is refined
     by Newton at the end and verified at rank d, which certifies it when the relaxation is tight."""
-    result = StaircaseResult(u, objective(problem, u), check.lower_bound, _trace(problem, u), check, u.shape[1])
+    result = StaircaseResult(u, objective(problem, u), check, u.shape[1])
     data, best_rounded = DataMatrix(problem), None
     while result.rank < max_rank and not check.positive_semidefinite:
         lifted = _escape(problem, u, check, min(ESCAPE_ROWS, max_rank - result.rank))
@@ -274,8 +275,7 @@ def riemannian_staircase(problem: SyncProblem, u: np.ndarray, check: Verificatio
     value = objective(problem, refined)
     if value < result.best_value:
         result.best, result.best_value = refined, value
-        lambdas, check = verify_point(problem, refined, value, budget, anchor)
-        _keep_bound(result, check, lambdas)
+        _keep_bound(result, verify_point(problem, refined, value, budget, anchor))
     return result
 
 
@@ -290,18 +290,13 @@ def _level(problem, start, data, budget, anchor, result: StaircaseResult, best_r
     value = objective(problem, rounded)
     if best_rounded is None or value < objective(problem, best_rounded):
         best_rounded = rounded
-    lambdas, check = verify_point(problem, u, min(value, result.best_value), budget, anchor)
-    _keep_bound(result, check, lambdas)
+    check = verify_point(problem, u, min(value, result.best_value), budget, anchor)
+    _keep_bound(result, check)
     result.levels.append((result.rank, objective(problem, u), value, check.lower_bound, check.min_eigenvalue))
     return u, check, best_rounded
 
 
-def _keep_bound(result: StaircaseResult, check: Verification, lambdas: np.ndarray) -> None:
+def _keep_bound(result: StaircaseResult, check: Verification) -> None:
     """Keep ``check`` in ``result`` when its lower bound is the best so far."""
     if check.lower_bound > result.lower_bound:
-        result.lower_bound, result.verification = check.lower_bound, check
-        result.trace = float(np.trace(lambdas, axis1=1, axis2=2).sum())
-
-
-def _trace(problem: SyncProblem, u: np.ndarray) -> float:
-    return float(np.trace(lambda_blocks(problem, u), axis1=1, axis2=2).sum())
+        result.verification = check

@@ -179,15 +179,21 @@ class Verification:
     """``‖(Q − Λ)v − θ v‖`` for the unit Ritz vector v: Q − Λ has an eigenvalue within this of θ."""
     proven_shift: float
     """σ ≥ 0 with ``Q − Λ + σI ≻ 0`` proven by Cholesky: ``λ_min(Q − Λ) > −σ``."""
+    dual_bound: float
+    """``tr Λ``."""
     lower_bound: float
     """``tr Λ − dn σ``: a lower bound on the global minimum of F (module docstring)."""
-    eigenvector: np.ndarray
-    """``((d+1)n,)`` the vector ``[t; v]`` with v the unit Ritz vector and t its optimal translations, so
-    that ``wᵀ S w = vᵀ(Q − Λ)v``: the staircase's escape direction when θ < 0."""
     escape_directions: np.ndarray
-    """``(k, (d+1)n)`` the same for each Ritz value at most a tenth of θ < 0 (θ's first; k = 1 when θ ≥ 0)."""
+    """``(k, (d+1)n)`` the vectors ``[t; v]`` with v a unit Ritz vector and t its optimal translations, so that
+    ``wᵀ S w = vᵀ(Q − Λ)v``: θ's first, then those of the Ritz values at most a tenth of θ < 0 (k = 1 when
+    θ ≥ 0); the staircase's escape directions."""
     factorizations: int
     """Cholesky factorisations tried."""
+
+    @property
+    def eigenvector(self) -> np.ndarray:
+        """``((d+1)n,)`` θ's ``[t; v]`` (the first of :attr:`escape_directions`)."""
+        return self.escape_directions[0]
 
 
 def verify(matrix: CertificateMatrix, u: np.ndarray, lambdas: np.ndarray, budget: float, scale: float,
@@ -216,7 +222,7 @@ def verify(matrix: CertificateMatrix, u: np.ndarray, lambdas: np.ndarray, budget
         except NotPositiveDefiniteError:
             pass
     trace = float(np.trace(lambdas, axis1=1, axis2=2).sum())
-    return Verification(bool(psd), value, residual, shift, trace - dn * shift, vectors[0], vectors, tried)
+    return Verification(bool(psd), value, residual, shift, trace, trace - dn * shift, vectors, tried)
 
 
 def _factorize(matrix: CertificateMatrix, solver, anchor: int, shift: float) -> None:
@@ -309,9 +315,8 @@ class Budget:
         return self.allowed(value) / dn
 
 
-def verify_point(problem: SyncProblem, u: np.ndarray, value: float, budget: Budget, anchor: int = 0):
-    """``(Λ blocks, Verification)`` of the critical point ``u`` ``(n, r, d+1)`` whose rounded estimate has F = ``value``."""
+def verify_point(problem: SyncProblem, u: np.ndarray, value: float, budget: Budget, anchor: int = 0) -> Verification:
+    """The :class:`Verification` of the critical point ``u`` ``(n, r, d+1)`` whose rounded estimate has F = ``value``."""
     lambdas = lambda_blocks(problem, u)
     dn = lambdas.shape[0] * lambdas.shape[1]
-    matrix = certificate_matrix(problem, lambdas)
-    return lambdas, verify(matrix, u, lambdas, budget.shift(value, dn), budget.scale, anchor)
+    return verify(certificate_matrix(problem, lambdas), u, lambdas, budget.shift(value, dn), budget.scale, anchor)

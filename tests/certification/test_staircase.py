@@ -35,7 +35,7 @@ def test_staircase_climbs_from_a_local_minimum_to_the_certified_optimum():
     problem = sync_problem(graph)
     u, value = _local_minimum(problem, optimum.sesync_objective, np.random.default_rng(3))
     budget = Budget(1e-6, data_scale(problem))
-    _, check = verify_point(problem, u, value, budget)
+    check = verify_point(problem, u, value, budget)
     assert not check.positive_semidefinite and check.min_eigenvalue < 0
     assert check.lower_bound < optimum.sesync_objective  # a valid, if weak, bound even at a local minimum
     found = riemannian_staircase(problem, u, check, budget)
@@ -52,7 +52,7 @@ def test_staircase_never_returns_worse_than_its_start():
     problem = sync_problem(graph)
     start, value, _ = refine_poses(problem, np.concatenate([graph.poses[:, :3, 3:], graph.poses[:, :3, :3]], axis=2))
     budget = Budget(1e-6, data_scale(problem))
-    _, check = verify_point(problem, start, value, budget)
+    check = verify_point(problem, start, value, budget)
     found = riemannian_staircase(problem, start, check, budget)
     assert found.best_value <= value
     assert found.lower_bound <= found.best_value
