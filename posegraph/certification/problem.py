@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from posegraph.model.graph import PoseGraph, edge_components
+from posegraph.model.priors import prior_poses
 from posegraph.errors import GraphError
 
 __all__ = ["SyncProblem", "sync_problem", "component_problems", "isotropic_precisions", "edge_maps", "edge_residuals", "objective",
@@ -110,9 +111,10 @@ def sync_problem(graph: PoseGraph) -> SyncProblem:
     lines = graph.edge_lines
     if pose_priors:
         undo = group.adjoint(group.inverse(priors.pose_offsets))
+        vertices, targets = prior_poses(graph)  # P = Z O⁻¹ (pose priors only: position priors are refused above)
         edge_from = np.r_[edge_from, np.full(pose_priors, n, dtype=np.int64)]
-        edge_to = np.r_[edge_to, priors.pose_vertex]
-        measurements = np.concatenate([measurements, priors.pose_measurements @ group.inverse(priors.pose_offsets)])
+        edge_to = np.r_[edge_to, vertices]
+        measurements = np.concatenate([measurements, targets])
         information = np.concatenate([information, np.swapaxes(undo, 1, 2) @ priors.pose_information @ undo])
         lines = None if lines is None or priors.pose_lines is None else np.r_[lines, priors.pose_lines]
     kappa, tau = _checked_precisions(information, group, graph.source, lines)
