@@ -92,16 +92,18 @@ def csv_path_for(summary_path: str) -> str:
 
 def summary_paths(summary_path: str) -> tuple[str, ...]:
     """The files a summary is written to: the JSON and its CSV (:func:`csv_path_for`), or only the JSON when
-    ``summary_path`` names a character device or a FIFO (``--report /dev/null`` discards the summary: it
-    must not leave a ``/dev/null.csv`` beside it, nor a second stream interleaved into a pipe)."""
-    import stat
+    ``summary_path`` is written into rather than replaced (a character device or a FIFO:
+    :func:`~posegraph.io.atomic.output_target`): ``--report /dev/null`` discards the summary and must not
+    leave a ``/dev/null.csv`` beside it, nor a second stream be interleaved into a pipe. A path that
+    cannot be written keeps its CSV here: :func:`~posegraph.cli.common.check_output` refuses it."""
+    from posegraph.errors import OutputError
+    from posegraph.io.atomic import output_target
 
     try:
-        mode = os.stat(summary_path).st_mode
-    except OSError:
-        return summary_path, csv_path_for(summary_path)
-    special = stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
-    return (summary_path,) if special else (summary_path, csv_path_for(summary_path))
+        node = output_target(summary_path).kind == "node"
+    except OutputError:
+        node = False
+    return (summary_path,) if node else (summary_path, csv_path_for(summary_path))
 
 
 def write_summary(rows: list, path: str, command: list | None = None) -> None:
