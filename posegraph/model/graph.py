@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
+from posegraph.model.landmarks import Landmarks
 from posegraph.model.priors import Priors, anchored_components
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "vertex_ranks", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
@@ -113,6 +114,9 @@ class PoseGraph:
     file_format: object | None = field(default=None, repr=False)
     """What a reader keeps to write the file back as it came (a Sim(3) file's variant and camera numbers:
     :class:`posegraph.io.g2o_sim3.Sim3Format`); None if nothing."""
+    landmarks: Landmarks | None = field(default=None, repr=False)
+    """Point variables beside the poses and the measurements of them (:class:`posegraph.model.landmarks.Landmarks`),
+    or None: a pose graph."""
 
     def __post_init__(self) -> None:
         if self.fixed is None:
