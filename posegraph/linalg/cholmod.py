@@ -431,17 +431,27 @@ def _remembered(method: str, pattern: tuple, compute) -> np.ndarray:
     return last[1].copy()
 
 
-def block_permutation(order, block: int) -> np.ndarray:
-    """The scalar permutation ``(block·p,)`` eliminating ``block``-sized blocks in the order ``order`` ``(p,)``."""
+def block_permutation(order, block) -> np.ndarray:
+    """The scalar permutation eliminating the blocks in the order ``order`` ``(p,)``.
+
+    ``block``: the size of every block (an int: ``(block·p,)``), or ``(p,)`` sizes of blocks laid
+    out one after the other (block ``c`` owns rows ``Σ_{c'<c} block[c'] ..``)."""
     order = np.asarray(order, dtype=np.int64)
-    return (block * order[:, None] + np.arange(block)[None, :]).reshape(-1)
+    if np.ndim(block) == 0:
+        return (block * order[:, None] + np.arange(block)[None, :]).reshape(-1)
+    sizes = np.asarray(block, dtype=np.int64)
+    offsets = np.concatenate(([0], np.cumsum(sizes)))[:-1]
+    taken = sizes[order]
+    within = np.arange(int(taken.sum())) - np.repeat(np.cumsum(taken) - taken, taken)
+    return np.repeat(offsets[order], taken) + within
 
 
 def block_cholesky(
     indptr, indices, block_indptr, block_indices, num_blocks: int, block: int, ordering: str = "auto",
     threads: int | None = 1,
 ) -> SparseCholesky:
-    """:class:`SparseCholesky` of a matrix made of ``block``×``block`` blocks, analysed once.
+    """:class:`SparseCholesky` of a matrix made of ``block``×``block`` blocks, analysed once
+    (``block``: an int, or the ``(num_blocks,)`` sizes of blocks of several sizes, :func:`block_permutation`).
 
     ``indptr``/``indices``: the scalar CSC pattern (order ``block·num_blocks``);
     ``block_indptr``/``block_indices``: its block (vertex) pattern, one entry per stored block.
@@ -451,7 +461,7 @@ def block_cholesky(
     """
     if ordering == "auto":
         ordering = auto_ordering(num_blocks)
-    n = block * num_blocks
+    n = block * num_blocks if np.ndim(block) == 0 else int(np.sum(block))
     if ordering not in VERTEX_ORDERINGS:
         return SparseCholesky(indptr, indices, n, ordering, threads)
     order = fill_reducing_order(block_indptr, block_indices, num_blocks, ordering)

@@ -124,7 +124,7 @@ class CholmodSolver(LinearSolver):
         self.ordering = ordering
         self._cholesky = cholmod_library.block_cholesky(
             pattern.indptr, pattern.indices, pattern.block_indptr, pattern.block_indices,
-            pattern.num_variables, pattern.block_size, ordering, blas_threads,
+            pattern.num_variables, _block_sizes(pattern), ordering, blas_threads,
         )  # fmt: skip
         threads = f", {blas_threads} BLAS thread{'s' if blas_threads != 1 else ''}" if self._cholesky.threads_active else ""
         self.name = f"cholmod (supernodal, {ordering}{threads}) via cvxopt"
@@ -144,13 +144,14 @@ def vertex_graph(pattern: HessianPattern):
     """``(p, p)`` symmetric 0/1 pattern of the block graph (free vertices, diagonal included), scipy CSC."""
     import scipy.sparse as sp
 
-    p, block = pattern.num_variables, pattern.block_size
-    cols = np.repeat(np.arange(p * block), np.diff(pattern.indptr))
-    rows = pattern.indices.astype(np.int64)
-    keep = (rows % block == 0) & (cols % block == 0)  # one entry per stored block
-    br, bc = rows[keep] // block, cols[keep] // block
-    lower = sp.csc_matrix((np.ones(br.shape[0]), (br, bc)), shape=(p, p))
+    p = pattern.num_variables
+    lower = sp.csc_matrix((np.ones(pattern.block_indices.shape[0]), pattern.block_indices, pattern.block_indptr), shape=(p, p))
     return (lower + lower.T).tocsc()
+
+
+def _block_sizes(pattern: HessianPattern):
+    """The block size of a pattern's variables: one int for a pose graph, ``(p,)`` sizes with landmarks."""
+    return pattern.block_size if pattern.point_size == 0 else pattern.sizes
 
 
 def elimination_tree(pattern) -> np.ndarray:
@@ -224,7 +225,7 @@ class ScipySolver(LinearSolver):
         self._pattern = pattern
         d = pattern.dimension
         order = vertex_ordering(pattern)
-        self.permutation = cholmod_library.block_permutation(order, pattern.block_size)
+        self.permutation = cholmod_library.block_permutation(order, _block_sizes(pattern))
         # Map from the lower-triangle data to the permuted full matrix's CSC data, computed by
         # pushing the positions 0..nnz-1 through the same symmetrisation and permutation.
         positions = np.arange(pattern.nnz, dtype=np.float64) + 1.0  # +1: keep explicit zeros apart
@@ -382,7 +383,10 @@ def make_linear_solver(
     ``factor_needed=False`` turns to ``"pcg"`` when CHOLMOD's factor would not fit in memory
     (:func:`posegraph.linalg.multigrid.factorisation_fits`).
     """
-    if kind == "auto" and not factor_needed and cholmod_available() and not multigrid.factorisation_fits(
+    if kind == "pcg" and pattern.point_size:
+        raise ValueError("linear_solver='pcg' takes pose graphs only (its multigrid knows blocks of one size); "
+                         "use 'cholmod' or 'scipy' for a graph with landmarks")
+    if kind == "auto" and not factor_needed and cholmod_available() and not pattern.point_size and not multigrid.factorisation_fits(
         pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
     ):
         return MultigridSolver(pattern, tolerance)

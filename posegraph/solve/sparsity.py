@@ -33,7 +33,7 @@ import numpy as np
 from posegraph.lie.group import SE3
 
 __all__ = [
-    "HessianPattern", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc", "PinnedVariables",
+    "HessianPattern", "PointVariables", "PointFamily", "analyze_pattern", "hessian_values", "gradient_values", "lower_matvec", "lower_csc", "PinnedVariables",
     "SymmetricBlocks", "symmetric_blocks", "symmetric_block_values",
 ]
 
@@ -70,12 +70,40 @@ class HessianPattern:
     """``(2d·m,)`` int32 (int64 past 2³¹): row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
     ``(m, 2, d)`` stacking ``[g_i, g_j]`` of each edge; ``dp`` for held vertices' entries."""
     block_size: int = BLOCK
-    """Block size ``d``: the tangent dimension of the graph's group (6 for SE(3))."""
+    """Block size ``d`` of the poses: the tangent dimension of the graph's group (6 for SE(3))."""
+    sizes: np.ndarray | None = None
+    """``(p,)`` int64 block size of each variable: ``d`` for the poses, then ``s`` for the landmarks."""
+    offsets: np.ndarray | None = None
+    """``(p + 1,)`` int64 first row of each variable's block (``offsets[-1]`` the system's size)."""
+    point_variable_of: np.ndarray | None = None
+    """``(L,)`` int64 variable of each landmark, −1 for held ones; empty for a pose graph."""
+    point_size: int = 0
+    """The landmarks' block size ``s`` (0 for a pose graph)."""
+    family_positions: tuple = ()
+    """Per landmark family (:class:`PointFamily`): ``(hessian, gradient)`` scatter maps
+    (:func:`_family_positions`), in the order of ``PointVariables.families``."""
 
     @property
     def dimension(self) -> int:
-        """Size ``dp`` of the linear system."""
-        return self.block_size * self.num_variables
+        """Size of the linear system: ``dp`` for a pose graph, ``d·P + s·Q`` with landmarks."""
+        return int(self.offsets[-1])
+
+    @property
+    def num_pose_variables(self) -> int:
+        """Number ``P`` of free poses (the first ``P`` variables)."""
+        return int(np.count_nonzero(self.variable_of >= 0))
+
+    @property
+    def pose_dimension(self) -> int:
+        """Rows ``d·P`` of the poses' steps (the landmarks' follow)."""
+        return self.block_size * self.num_pose_variables
+
+    def expand_points(self, delta: np.ndarray) -> np.ndarray:
+        """``(D,)`` solution vector -> ``(L, s)`` per-landmark steps, zero for held landmarks."""
+        out = np.zeros((self.point_variable_of.size, self.point_size))
+        free = self.point_variable_of >= 0
+        out[free] = np.asarray(delta)[self.pose_dimension :].reshape(-1, self.point_size)
+        return out
 
     @property
     def entry_columns(self) -> np.ndarray:
@@ -92,11 +120,13 @@ class HessianPattern:
         """``(dp,)`` solution vector -> ``(n, d)`` per-vertex tangent steps, zero for held vertices."""
         out = np.zeros((self.num_vertices, self.block_size))
         free = self.variable_of >= 0
-        out[free] = np.asarray(delta).reshape(-1, self.block_size)
+        out[free] = np.asarray(delta)[: self.pose_dimension].reshape(-1, self.block_size)
         return out
 
 
-def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int = BLOCK) -> HessianPattern:
+def analyze_pattern(
+    num_vertices: int, edge_from, edge_to, held, block_size: int = BLOCK, points: "PointVariables | None" = None
+) -> HessianPattern:
     """Compute the block sparsity of H and the per-edge scatter maps.
 
     Parameters
@@ -107,7 +137,10 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int
     held : (n,) bool array
         Vertices held constant (fixed vertices and gauge anchors); they get no variables.
     block_size : int
-        Tangent dimension ``d`` of the graph's group (``graph.group.dim``): the size of each block.
+        Tangent dimension ``d`` of the graph's group (``graph.group.dim``): the size of each pose block.
+    points : PointVariables, optional
+        Landmark variables (``s``-sized blocks, numbered after the poses) and the families of
+        measurements joining them to poses (:class:`PointVariables`); None: a pose graph.
     """
     n, d = int(num_vertices), int(block_size)
     ei = np.asarray(edge_from, dtype=np.int64)
@@ -117,16 +150,18 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int
         raise ValueError(f"held must have shape ({n},), got {held.shape}")
     if np.any(ei == ej):
         raise ValueError("edges joining a vertex to itself are not supported")
-    variable_of = np.full(n, -1, dtype=np.int64)
-    p = int(np.count_nonzero(~held))
-    variable_of[~held] = np.arange(p)
+    points = PointVariables.none() if points is None else points
+    variable_of, point_variable_of, sizes = _number_variables(held, points, d)
+    p = sizes.size
+    offsets = np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
     ci, cj = variable_of[ei], variable_of[ej]
-    blocks = _block_pattern(ci, cj, p)
-    layout = _scalar_layout(blocks, p, d)
-    hessian_positions = _hessian_positions(ci, cj, blocks, layout, p, d)
-    gradient_table = np.full((p + 1, d), d * p, dtype=np.intp)  # row of g of entry q of vertex c
-    gradient_table[:p] = d * np.arange(p)[:, None] + np.arange(d)[None, :]
-    gradient_positions = _narrowest(np.stack([gradient_table[ci], gradient_table[cj]], axis=1).reshape(-1), d * p)
+    families = [(variable_of[f.pose] if f.pose is not None else None, point_variable_of[f.point]) for f in points.families]
+    binary = [(a, b) for a, b in families if a is not None]
+    blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
+    layout = _scalar_layout(blocks, sizes, offsets)
+    system = _System(blocks, layout, offsets, int(layout.indptr[-1]))
+    hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz)
+    gradient_positions = _narrowest(np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1), system.dimension)
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,
@@ -139,7 +174,65 @@ def analyze_pattern(num_vertices: int, edge_from, edge_to, held, block_size: int
         hessian_positions=hessian_positions,
         gradient_positions=gradient_positions,
         block_size=d,
+        sizes=sizes,
+        offsets=offsets,
+        point_variable_of=point_variable_of,
+        point_size=points.size,
+        family_positions=tuple(_family_positions(system, a, b, d, points.size) for a, b in families),
     )
+
+
+@dataclass(frozen=True, eq=False)
+class PointFamily:
+    """One family of landmark measurements as the pattern sees it: which pose sees which point."""
+
+    pose: np.ndarray | None
+    """``(q,)`` int64 vertex index of each measurement's pose, or None for a unary family (point priors)."""
+    point: np.ndarray
+    """``(q,)`` int64 landmark index of each measurement."""
+
+
+@dataclass(frozen=True, eq=False)
+class PointVariables:
+    """The landmark variables of a pattern: ``count`` points of dimension ``size``, some held."""
+
+    count: int
+    """Number of landmarks ``L``."""
+    size: int
+    """Their dimension ``s`` (2 or 3): the size of their blocks."""
+    held: np.ndarray
+    """``(L,)`` bool: landmarks without variables (``FIX``)."""
+    families: tuple = ()
+    """The measurement families (:class:`PointFamily`), in the order the solver linearises them."""
+
+    @classmethod
+    def none(cls) -> "PointVariables":
+        return cls(0, 0, np.zeros(0, dtype=bool), ())
+
+
+def _number_variables(held: np.ndarray, points: PointVariables, d: int):
+    """Variables: the free poses in vertex order, then the free landmarks; their block sizes."""
+    variable_of = np.full(held.size, -1, dtype=np.int64)
+    poses = int(np.count_nonzero(~held))
+    variable_of[~held] = np.arange(poses)
+    point_variable_of = np.full(points.count, -1, dtype=np.int64)
+    free_points = ~np.asarray(points.held, dtype=bool)
+    point_variable_of[free_points] = poses + np.arange(int(np.count_nonzero(free_points)))
+    sizes = np.concatenate([np.full(poses, d), np.full(int(np.count_nonzero(free_points)), points.size)]).astype(np.int64)
+    return variable_of, point_variable_of, sizes
+
+
+def _family_positions(system: "_System", pose_var, point_var, d: int, s: int) -> tuple:
+    """The scatter maps of one landmark family: ``(hessian, gradient)``.
+
+    Binary: ``hessian`` = positions of ``(H_pose,pose (q·d²), H_point,point (q·s²), H_pose,point (q·d·s))``
+    and ``gradient`` ``(q·(d+s),)`` rows of ``[g_pose, g_point]``; unary: ``(H_point,point,)`` and ``(q·s,)``.
+    """
+    if pose_var is None:
+        return (system.diagonal_positions(point_var, s).reshape(-1),), system.rows(point_var, s).reshape(-1)
+    h_ii, h_jj, h_ij = system.pair_positions(pose_var, point_var, d, s)
+    gradient = np.concatenate([system.rows(pose_var, d), system.rows(point_var, s)], axis=1).reshape(-1)
+    return (h_ii.reshape(-1), h_jj.reshape(-1), h_ij.reshape(-1)), gradient
 
 
 @dataclass(frozen=True)
@@ -179,65 +272,103 @@ def _block_pattern(ci: np.ndarray, cj: np.ndarray, p: int) -> _Blocks:
 class _Layout:
     """The scalar CSC layout of the lower triangle (:func:`_scalar_layout`)."""
 
-    indptr: np.ndarray  # (dp + 1,) int64
+    indptr: np.ndarray  # (D + 1,) int64, D = Σ sizes
     indices: np.ndarray  # (nnz,) int64
-    diagonal_slots: np.ndarray  # (p, d(d+1)/2) data positions of the stored entries of each H_cc
-    off_slots: np.ndarray  # (k, d²) data positions of the entries of each off-diagonal block
-    lower: np.ndarray  # (d²,) bool: entry a·d + b of a block is on or below its diagonal
+    row_start: np.ndarray  # (k,) int64: rows of column c's off-diagonal part above the block's first row
 
 
-def _scalar_layout(blocks: _Blocks, p: int, d: int) -> _Layout:
-    """CSC pointers and rows of the lower triangle, and where each block's entries sit in ``data``.
+def _scalar_layout(blocks: _Blocks, sizes: np.ndarray, offsets: np.ndarray) -> _Layout:
+    """CSC pointers and rows of the lower triangle, for blocks of sizes ``sizes`` ``(p,)``.
 
-    Column ``d·c + q`` holds ``d − q`` rows of the diagonal block, then ``d`` rows per off-diagonal
-    block of block column ``c``. Entry ``(a, b)`` of a block is index ``a·d + b`` of its row-major ravel.
+    Variable ``c`` owns rows and columns ``offsets[c] .. offsets[c] + z_c − 1`` (``z_c = sizes[c]``).
+    Its column ``offsets[c] + b`` holds ``z_c − b`` rows of the diagonal block, then, block by block
+    in row order, the ``z_r`` rows of each off-diagonal block (row variable ``r``) of block column ``c``.
     """
-    q = np.arange(d)
-    col_len = (d - q)[None, :] + d * blocks.per_column[:, None]  # (p, d)
-    indptr = np.concatenate(([0], np.cumsum(col_len.ravel()))).astype(np.int64)
+    p, k = sizes.size, blocks.key.size
+    dimension = int(offsets[-1])
+    row_sizes = sizes[blocks.row]
+    off_rows = np.bincount(blocks.col, weights=row_sizes, minlength=p).astype(np.int64)
+    column_variable = np.repeat(np.arange(p), sizes)
+    local = np.arange(dimension) - offsets[column_variable]
+    indptr = np.concatenate(([0], np.cumsum(sizes[column_variable] - local + off_rows[column_variable]))).astype(np.int64)
     nnz = int(indptr[-1])
     if nnz > np.iinfo(np.int32).max:
         raise ValueError("system too large for 32-bit sparse indices")
-    column_start = indptr[:-1].reshape(p, d)  # data position where column d·c+q begins
-    rows, cols = (grid.ravel() for grid in np.meshgrid(q, q, indexing="ij"))
-    lower = rows >= cols
-    low_row, low_col = rows[lower], cols[lower]
-    # diagonal block of variable c: its column d·c+b starts with row d·c+b; the s-th off-diagonal
-    # block of block column c: column d·c+b holds it after its d−b diagonal-block rows, at d·s + a
-    diagonal_slots = column_start[:, low_col] + (low_row - low_col)
-    off_slots = column_start[blocks.col][:, cols] + (d - cols) + d * blocks.rank[:, None] + rows
-    indices = np.empty(nnz, dtype=np.int64)
-    indices[diagonal_slots] = d * np.arange(p)[:, None] + low_row
-    indices[off_slots] = d * blocks.row[:, None] + rows
-    return _Layout(indptr, indices, diagonal_slots, off_slots, lower)
+    before = np.cumsum(row_sizes) - row_sizes  # rows of all earlier blocks, then of the column's earlier ones
+    column_first = (np.concatenate(([0], np.cumsum(blocks.per_column)))[:-1])[blocks.col]
+    row_start = before - before[column_first] if k else np.zeros(0, dtype=np.int64)
+    layout = _Layout(indptr, np.empty(nnz, dtype=np.int64), row_start.astype(np.int64))
+    system = _System(blocks, layout, offsets, nnz)
+    for z in np.unique(sizes):
+        variables = np.flatnonzero(sizes == z)
+        a, b = _grid(int(z), int(z))
+        keep = a >= b
+        layout.indices[system.diagonal_slots(variables, int(z))[:, keep]] = offsets[variables][:, None] + a[keep]
+    for zr, zc in set(zip(row_sizes.tolist(), sizes[blocks.col].tolist())):
+        which = np.flatnonzero((row_sizes == zr) & (sizes[blocks.col] == zc))
+        a, _ = _grid(zr, zc)
+        layout.indices[system.off_slots(which, zr, zc)] = offsets[blocks.row[which]][:, None] + a
+    return layout
 
 
-def _hessian_positions(ci, cj, blocks: _Blocks, layout: _Layout, p: int, d: int) -> np.ndarray:
-    """``(3, d²·m)`` data positions of every entry of every edge's ``H_ii``, ``H_jj``, ``H_ij``.
+def _grid(rows: int, columns: int):
+    """Row and column ``(rows·columns,)`` of each entry of a ``rows``×``columns`` block raveled row-major."""
+    return np.repeat(np.arange(rows), columns), np.tile(np.arange(columns), rows)
 
-    Gathered from small tables (one row per variable or stored block, plus a last row of "not
-    stored" = nnz that index −1 picks), rather than scattered entry by entry.
-    """
-    nnz, entries, m = int(layout.indptr[-1]), d * d, ci.shape[0]
-    diagonal_table = np.full((p + 1, entries), nnz, dtype=np.intp)  # entry (a, b) of variable c's H_cc
-    diagonal_table[:p, np.flatnonzero(layout.lower)] = layout.diagonal_slots
-    positions = np.empty((3, m, entries), dtype=np.intp)
-    positions[0] = diagonal_table[ci]  # H_ii (ci = −1: held, the last row)
-    positions[1] = diagonal_table[cj]  # H_jj
-    # H_ij sits at block (ci, cj): stored as is when ci > cj, else as its transpose at (cj, ci);
-    # rows k.. of the table are the transposed blocks (entry (a, b) of Bᵀ is entry (b, a) of B).
-    k = blocks.key.size
-    transpose = np.arange(entries).reshape(d, d).T.ravel()
-    off_table = np.full((2 * k + 1, entries), nnz, dtype=np.intp)
-    off_table[:k] = layout.off_slots
-    off_table[k : 2 * k] = layout.off_slots[:, transpose]
-    which_block = np.full(m, 2 * k, dtype=np.intp)
-    both = (ci >= 0) & (cj >= 0)
-    if np.any(both):
-        a, b = ci[both], cj[both]
-        which_block[both] = np.searchsorted(blocks.key, np.minimum(a, b) * blocks.stride + np.maximum(a, b)) + k * (a < b)
-    positions[2] = off_table[which_block]
-    return _narrowest(positions.reshape(3, -1), nnz)
+
+@dataclass(frozen=True)
+class _System:
+    """Where the entries of blocks sit in the CSC ``data`` of a layout, and rows of ``g``."""
+
+    blocks: _Blocks
+    layout: _Layout
+    offsets: np.ndarray
+    nnz: int
+
+    @property
+    def dimension(self) -> int:
+        return int(self.offsets[-1])
+
+    def diagonal_slots(self, variables: np.ndarray, z: int) -> np.ndarray:
+        """``(v, z²)`` data position of entry ``(a, b)``, ``a ≥ b``, of each variable's diagonal block
+        (only those entries are meaningful): ``indptr[offsets[c] + b] + a − b``."""
+        a, b = _grid(z, z)
+        return self.layout.indptr[self.offsets[variables][:, None] + b] + (a - b)
+
+    def off_slots(self, which: np.ndarray, zr: int, zc: int) -> np.ndarray:
+        """``(w, zr·zc)`` data position of entry ``(a, b)`` of the stored off-diagonal blocks ``which``:
+        ``indptr[offsets[col] + b] + (zc − b) + row_start + a``."""
+        a, b = _grid(zr, zc)
+        start = self.layout.indptr[self.offsets[self.blocks.col[which]][:, None] + b]
+        return start + (zc - b) + self.layout.row_start[which][:, None] + a
+
+    def diagonal_positions(self, variables: np.ndarray, z: int) -> np.ndarray:
+        """``(m, z²)`` data positions of ``H_cc`` for variables ``c`` (−1: held); ``nnz`` where not stored."""
+        a, b = _grid(z, z)
+        free = variables >= 0
+        slots = self.diagonal_slots(np.where(free, variables, 0), z)
+        return np.where(free[:, None] & (a >= b), slots, self.nnz)
+
+    def pair_positions(self, ci: np.ndarray, cj: np.ndarray, zi: int, zj: int):
+        """``(H_ii (m, zi²), H_jj (m, zj²), H_ij (m, zi·zj))`` data positions for factors joining
+        variables ``ci`` and ``cj``. ``H_ij`` sits at block (``ci``, ``cj``): stored as is when
+        ``ci > cj``, else as its transpose at (``cj``, ``ci``), entry ``(a, b)`` at ``(b, a)``."""
+        m = ci.shape[0]
+        both = (ci >= 0) & (cj >= 0)
+        off = np.full((m, zi * zj), self.nnz, dtype=np.int64)
+        key = np.minimum(ci, cj) * self.blocks.stride + np.maximum(ci, cj)
+        lower, upper = np.flatnonzero(both & (ci > cj)), np.flatnonzero(both & (ci < cj))
+        if lower.size:
+            off[lower] = self.off_slots(np.searchsorted(self.blocks.key, key[lower]), zi, zj)
+        if upper.size:
+            flipped = self.off_slots(np.searchsorted(self.blocks.key, key[upper]), zj, zi)
+            off[upper] = flipped.reshape(-1, zj, zi).swapaxes(1, 2).reshape(-1, zi * zj)
+        return self.diagonal_positions(ci, zi), self.diagonal_positions(cj, zj), off
+
+    def rows(self, variables: np.ndarray, z: int) -> np.ndarray:
+        """``(m, z)`` rows of ``g`` of each variable's entries; ``dimension`` for held variables."""
+        free = variables >= 0
+        return np.where(free[:, None], self.offsets[np.where(free, variables, 0)][:, None] + np.arange(z), self.dimension)
 
 
 def _narrowest(positions: np.ndarray, largest: int) -> np.ndarray:
