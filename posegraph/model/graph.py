@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
-from posegraph.model.landmarks import Landmarks
+from posegraph.model.landmarks import Landmarks, observed_pairs
 from posegraph.model.priors import Priors, anchored_components
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "vertex_ranks", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
@@ -202,8 +202,28 @@ def connected_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
     (``parent ← parent[parent]``). Trees only ever merge along edges, and every round hooks at least
     one root while some edge joins two trees, so it ends with one tree per component, rooted at its
     smallest vertex index; a handful of rounds on pose graphs (each a few array passes over the edges).
+
+    A landmark joins the poses that observe it (:func:`landmark_components`).
     """
-    return edge_components(graph.num_vertices, graph.edge_from, graph.edge_to)
+    if graph.landmarks is None:
+        return edge_components(graph.num_vertices, graph.edge_from, graph.edge_to)
+    count, labels = landmark_components(graph)
+    return count, labels[: graph.num_vertices]
+
+
+def landmark_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
+    """Components of the poses and landmarks together: ``(count, labels (n + L,))``, the poses first
+    (landmarks are vertices ``n + l``, joined to the poses that observe them). Components holding a
+    pose are numbered first (``count`` counts only those); a landmark no pose observes gets a label
+    ``≥ count``."""
+    n, landmarks = graph.num_vertices, graph.landmarks
+    pose, landmark = observed_pairs(landmarks)
+    total, labels = edge_components(
+        n + landmarks.count, np.concatenate([graph.edge_from, pose]), np.concatenate([graph.edge_to, n + landmark])
+    )
+    # roots are each component's smallest vertex, so the components with a pose come first
+    count = int(labels[:n].max()) + 1 if n else 0
+    return count, labels
 
 
 def edge_components(n: int, edge_from, edge_to) -> tuple[int, np.ndarray]:
@@ -243,10 +263,27 @@ def component_anchors(graph: PoseGraph) -> np.ndarray:
     has_fixed = np.zeros(count, dtype=bool)
     has_fixed[labels[graph.fixed]] = True
     has_fixed |= anchored_components(graph.priors, labels, count)
+    if graph.landmarks is not None:
+        has_fixed |= _landmark_anchored(graph, count)
     # Smallest id per component: sort by (label, id) and take the first of each label.
     order = np.lexsort((graph.ids, labels))
     first = order[np.r_[True, labels[order][1:] != labels[order][:-1]]]
     return np.sort(first[~has_fixed[labels[first]]])
+
+
+def _landmark_anchored(graph: PoseGraph, count: int) -> np.ndarray:
+    """``(count,)`` bool: components holding a ``FIX`` landmark or a landmark with a prior (they tie
+    the component to the world, as position priors do: a rotation they leave free is left to LM's damping)."""
+    _, labels = landmark_components(graph)
+    landmarks = graph.landmarks
+    tied = np.array(landmarks.fixed, dtype=bool, copy=True)
+    for family in landmarks.observations:
+        if family.unary:
+            tied[family.landmark] = True
+    component = labels[graph.num_vertices :][tied]
+    anchored = np.zeros(count, dtype=bool)
+    anchored[component[component < count]] = True
+    return anchored
 
 
 def held_vertices(graph: PoseGraph) -> np.ndarray:

@@ -62,6 +62,8 @@ class EdgeBlocks:
     """``(m,)`` per-edge weights ``w`` scaling every block of the edge, or None (all 1, no products)."""
     priors: object | None = None
     """The priors' blocks (:class:`posegraph.solve.unary.PriorBlocks`), None for a graph without priors."""
+    landmarks: object | None = None
+    """The landmark families' blocks (:class:`posegraph.solve.landmark_terms.LandmarkBlocks`), None without landmarks."""
 
     def hessian_slice(self, part: slice) -> tuple:
         """``(H_ii, H_jj, H_ij)`` of the edges in ``part``, each ``(k, d, d)``: ``W = w BᵀΩB``,

@@ -19,6 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from posegraph.model.graph import PoseGraph
+from posegraph.solve.landmark_terms import LandmarkErrors, landmark_errors, linearize_landmarks
 from posegraph.solve.linearize import EdgeBlocks, linearize
 from posegraph.solve.residuals import edge_errors, squared_norms, weighted_cost
 from posegraph.solve.unary import PriorErrors, linearize_priors, prior_errors, prior_squared_norms
@@ -52,6 +53,12 @@ class Evaluation:
     """The priors' residuals (:mod:`posegraph.solve.unary`), None for a graph without priors."""
     prior_weights: np.ndarray | None = None
     """``(a + b,)`` IRLS weights of the priors, None without a loss or priors."""
+    points: np.ndarray | None = None
+    """``(L, s)`` the landmark positions evaluated, None for a pose graph."""
+    landmarks: LandmarkErrors | None = None
+    """The landmark measurements' residuals (:mod:`posegraph.solve.landmark_terms`), None without landmarks."""
+    landmark_weights: np.ndarray | None = None
+    """``(Σq,)`` IRLS weights of the landmark measurements, None without a loss or landmarks."""
 
 
 class Objective:
@@ -63,24 +70,32 @@ class Objective:
         # C-contiguous once: batched d×d products are several times slower on other layouts
         self.information = np.ascontiguousarray(graph.information)
 
-    def evaluate(self, poses: np.ndarray) -> Evaluation:
-        """The cost at ``poses`` ``(n, k, k)``, the priors' terms included (a loss applies to them too)."""
+    def evaluate(self, poses: np.ndarray, points: np.ndarray | None = None) -> Evaluation:
+        """The cost at ``poses`` ``(n, k, k)`` and landmark ``points`` ``(L, s)`` (graphs with landmarks),
+        the priors' and landmark measurements' terms included (a loss applies to them too)."""
         relative, residuals = edge_errors(poses, self.graph)
         priors = prior_errors(poses, self.graph) if self.graph.priors is not None else None
         prior_s = prior_squared_norms(priors, self.graph.priors) if priors is not None else np.zeros(0)
+        landmarks = landmark_errors(self.graph, poses, points) if self.graph.landmarks is not None else None
+        landmark_s = landmarks.squared if landmarks is not None else np.zeros(0)
         if self.loss is None:
-            cost = weighted_cost(residuals, self.information) + 0.5 * float(np.sum(prior_s))
-            return Evaluation(relative, residuals, cost, priors=priors)
+            cost = weighted_cost(residuals, self.information) + 0.5 * float(np.sum(prior_s)) + 0.5 * float(np.sum(landmark_s))
+            return Evaluation(relative, residuals, cost, priors=priors, points=points, landmarks=landmarks)
         s = squared_norms(residuals, self.information)
-        cost = 0.5 * float(np.sum(self.loss.rho(s))) + 0.5 * float(np.sum(self.loss.rho(prior_s)))
+        rho = self.loss.rho
+        cost = 0.5 * (float(np.sum(rho(s))) + float(np.sum(rho(prior_s))) + float(np.sum(rho(landmark_s))))
         weights = np.asarray(self.loss.weight(s), dtype=np.float64)
         prior_weights = np.asarray(self.loss.weight(prior_s), dtype=np.float64) if priors is not None else None
-        return Evaluation(relative, residuals, cost, weights, priors, prior_weights)
+        landmark_weights = np.asarray(self.loss.weight(landmark_s), dtype=np.float64) if landmarks is not None else None
+        return Evaluation(relative, residuals, cost, weights, priors, prior_weights, points, landmarks, landmark_weights)
 
     def linearize(self, poses: np.ndarray, evaluation: Evaluation) -> EdgeBlocks:
         """Per-edge gradient and Hessian blocks at ``poses``, which ``evaluation`` evaluated (and the priors')."""
         errors = (evaluation.relative, evaluation.residuals)
         blocks = linearize(poses, self.graph, self.information, errors, weights=evaluation.weights)
-        if evaluation.priors is None:
-            return blocks
-        return replace(blocks, priors=linearize_priors(poses, self.graph, evaluation.priors, evaluation.prior_weights))
+        if evaluation.priors is not None:
+            blocks = replace(blocks, priors=linearize_priors(poses, self.graph, evaluation.priors, evaluation.prior_weights))
+        if evaluation.landmarks is not None:
+            landmarks = linearize_landmarks(self.graph, poses, evaluation.points, evaluation.landmark_weights)
+            blocks = replace(blocks, landmarks=landmarks)
+        return blocks

@@ -52,6 +52,7 @@ from posegraph.solve.result import IterationRecord, OptimizeResult
 from posegraph.solve.sparsity import (
     HessianPattern, PinnedVariables, analyze_pattern, gradient_values, hessian_values, lower_matvec,
 )
+from posegraph.solve.landmark_terms import add_landmark_gradient, add_landmark_hessian, point_variables, retract_points
 from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
 from posegraph.solve.trust_region import (  # noqa: F401  (the termination reasons, re-exported)
     CALLBACK, CONVERGED_ABSOLUTE, CONVERGED_COST, CONVERGED_DECREMENT, CONVERGED_NOTHING, CONVERGED_PREDICTED,
@@ -97,9 +98,10 @@ def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
     start = time.perf_counter()
     params = SolverParams() if params is None else params
     held = held_vertices(graph)
-    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim)
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim, point_variables(graph))
     solver = None
-    if pattern.num_variables > 0 and graph.num_edges > 0:
+    measured = graph.num_edges + (graph.landmarks.num_measurements if graph.landmarks is not None else 0)
+    if pattern.num_variables > 0 and measured > 0:
         solver = make_linear_solver(
             params.linear_solver, pattern, params.ordering, params.blas_threads, params.linear_tolerance,
             factor_needed=False,
@@ -115,6 +117,7 @@ def optimize(
     *,
     analysis: Analysis | None = None,
     hold: np.ndarray | None = None,
+    initial_points: np.ndarray | None = None,
 ) -> OptimizeResult:
     """Minimise ``½ Σ eᵀ Ω e`` (or ``½ Σ ρ(eᵀΩe)`` with ``params.loss``) over the free poses.
 
@@ -137,18 +140,23 @@ def optimize(
         in the analysed system, decoupled: :class:`~posegraph.solve.sparsity.PinnedVariables`).
         With the edges of weight 0 that leave them unconstrained, this solves a subgraph's problem
         over the analysis of a larger edge set.
+    initial_points : (L, s) array, optional
+        Starting landmark positions of a graph with landmarks; None: the file's with
+        ``initial="file"``, else each landmark from its measurements given the starting poses
+        (:func:`posegraph.init.landmarks.initialize_landmarks`).
 
     Returns
     -------
     OptimizeResult
-        Final poses (held vertices unchanged), costs, per-iteration records, termination reason
-        and the linear solver that ran.
+        Final poses (held vertices unchanged) and landmark positions, costs, per-iteration records,
+        termination reason and the linear solver that ran.
     """
     start = time.perf_counter()
     params = SolverParams() if params is None else params
     if analysis is not None and not analysis.matches(graph):
         raise ValueError("the analysis was made for other edges than the graph's")
-    run = _Run(graph, _initial_poses(graph, initial), params, analysis, hold)
+    poses = _initial_poses(graph, initial)
+    run = _Run(graph, (poses, _initial_points(graph, initial, poses, initial_points)), params, analysis, hold)
     early = run.nothing_to_do()
     if early is not None:
         return run.result(early, [], start)
@@ -187,6 +195,24 @@ def _initial_poses(graph: PoseGraph, initial) -> np.ndarray:
     return poses
 
 
+def _initial_points(graph: PoseGraph, initial, poses: np.ndarray, given) -> np.ndarray | None:
+    """The starting landmark positions ``(L, s)`` (module :mod:`posegraph.model.landmarks`), None without landmarks."""
+    if graph.landmarks is None:
+        return None
+    if given is None and isinstance(initial, str) and initial == "file":
+        given = graph.landmarks.positions
+    if given is None:
+        from posegraph.init.landmarks import initialize_landmarks
+
+        given = initialize_landmarks(graph, poses)[0]
+    points = np.array(given, dtype=np.float64, copy=True)
+    if points.shape != graph.landmarks.positions.shape:
+        raise ValueError(f"initial landmark positions must have shape {graph.landmarks.positions.shape}, got {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise ValueError("initial landmark positions contain NaN or infinite values")
+    return points
+
+
 @dataclass
 class _Trial:
     """A step tried from the current poses, ``X ⊕ scale·δ``, and how it was judged."""
@@ -203,6 +229,8 @@ class _Trial:
     """``λ δᵀDδ`` (for the model decrease of a shortened step)."""
     poses: np.ndarray | None = None
     """Poses at the trial (None: no usable step)."""
+    points: np.ndarray | None = None
+    """Landmark positions at the trial (None for a pose graph)."""
     evaluation: Evaluation | None = None
     """The cost there."""
     gain: float = float("nan")
@@ -235,15 +263,16 @@ class _Outcome:
 class _Run:
     """The state of one :func:`optimize` call: the problem, the current poses and cost, λ, the clock."""
 
-    def __init__(self, graph: PoseGraph, poses: np.ndarray, params: SolverParams, analysis: Analysis | None, hold=None):
+    def __init__(self, graph: PoseGraph, start: tuple, params: SolverParams, analysis: Analysis | None, hold=None):
         setup_start = time.perf_counter()
-        self.graph, self.params, self.poses = graph, params, poses
+        self.graph, self.params = graph, params
+        self.poses, self.points = start
         analysis = analyze(graph, params) if analysis is None else analysis
         self.free = ~analysis.held
         self.pattern: HessianPattern = analysis.pattern
         self.pinned = None if hold is None else PinnedVariables.of(self.pattern, hold)
         self.objective = Objective(graph, params.loss)
-        self.evaluation = self.objective.evaluate(poses)
+        self.evaluation = self.objective.evaluate(self.poses, self.points)
         self.initial_cost = self.evaluation.cost
         if not np.isfinite(self.initial_cost):
             raise ValueError("the cost at the initial poses is not finite")
@@ -279,20 +308,24 @@ class _Run:
             gradient = gradient_values(self.pattern, blocks.gradient)
             if blocks.priors is not None:
                 add_prior_gradient(self.pattern, gradient, blocks.priors)
+            if blocks.landmarks is not None:
+                add_landmark_gradient(self.pattern, gradient, blocks.landmarks)
             if self.pinned is not None:
                 self.pinned.zero_gradient(gradient)
         return _System(self, blocks, gradient)
 
-    def retract(self, steps: np.ndarray) -> np.ndarray:
-        """``X_k · Exp(δ_k)`` for the free vertices (``steps`` ``(p, d)``); held vertices unchanged."""
+    def retract(self, step: np.ndarray) -> tuple:
+        """``(poses, points)`` moved by the step ``δ`` ``(D,)``: ``X_k · Exp(δ_k)`` for the free vertices,
+        ``p_l + δ_l`` for the free landmarks; held ones unchanged."""
         out = self.poses.copy()
+        steps = step[: self.pattern.pose_dimension].reshape(-1, self.pattern.block_size)
         out[self.free] = self.poses[self.free] @ self.graph.group.exp(steps)
-        return out
+        return out, (None if self.points is None else retract_points(self.pattern, self.points, step))
 
     def evaluate_step(self, trial: _Trial) -> None:
         """Poses, cost and gain ratio of the full step ``X ⊕ δ``."""
-        trial.poses = self.retract(trial.step.reshape(-1, self.pattern.block_size))
-        trial.evaluation = self.objective.evaluate(trial.poses)
+        trial.poses, trial.points = self.retract(trial.step)
+        trial.evaluation = self.objective.evaluate(trial.poses, trial.points)
         new_cost = trial.evaluation.cost
         trial.gain = (self.cost - new_cost) / trial.predicted if np.isfinite(new_cost) else -np.inf
 
@@ -302,7 +335,7 @@ class _Run:
         if trial.accepted:
             decrease = self.cost - trial.evaluation.cost
             self.last_decrease, self.cost_before = decrease, self.cost
-            self.poses, self.evaluation = trial.poses, trial.evaluation
+            self.poses, self.points, self.evaluation = trial.poses, trial.points, trial.evaluation
         self.held_lambda = trial.lambda_ if outcome.hold else None
         return IterationRecord(
             iteration=number,
@@ -321,6 +354,7 @@ class _Run:
         """The outcome, with the current poses and cost; ``start`` is when :func:`optimize` began."""
         return OptimizeResult(
             poses=self.poses,
+            points=self.points,
             initial_cost=self.initial_cost,
             final_cost=self.cost,
             iterations=len(records),
@@ -348,6 +382,8 @@ class _System:
             data = hessian_values(self.run.pattern, self.blocks.hessian_slice)
             if self.blocks.priors is not None:
                 add_prior_hessian(self.run.pattern, data, self.blocks.priors)
+            if self.blocks.landmarks is not None:
+                add_landmark_hessian(self.run.pattern, data, self.blocks.landmarks)
         # Assembled: H and g alone are used from here on. The edge blocks (Jacobian factors, adjoints,
         # per-edge gradients: ~600 bytes an SE(3) edge) go before the factorisation needs the memory.
         self.blocks = None
@@ -440,17 +476,15 @@ def _shorten(run: _Run, trial: _Trial) -> bool:
     On success the trial holds the shortened step's poses, cost, scale ``t`` and gain ratio (over
     the model decrease at ``t``).
     """
-    steps = trial.step.reshape(-1, run.pattern.block_size)
-
     def cost_at(t):
-        moved = run.retract(t * steps)
-        evaluation = run.objective.evaluate(moved)
-        return evaluation.cost, (moved, evaluation)
+        poses, points = run.retract(t * trial.step)
+        evaluation = run.objective.evaluate(poses, points)
+        return evaluation.cost, (poses, points, evaluation)
 
     found = backtrack(cost_at, run.cost, trial.slope, trial.evaluation.cost, run.params)
     if found is None:
         return False
-    trial.scale, new_cost, (trial.poses, trial.evaluation) = found
+    trial.scale, new_cost, (trial.poses, trial.points, trial.evaluation) = found
     trial.gain = (run.cost - new_cost) / model_decrease(trial.scale, trial.slope, trial.damping_term)
     return True
 

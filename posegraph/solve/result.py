@@ -85,6 +85,8 @@ class OptimizeResult:
     """Sparsity analysis and symbolic factorisation (once per graph)."""
     seconds_total: float = 0.0
     """Wall-clock seconds of the whole call."""
+    points: np.ndarray | None = None
+    """``(L, s)`` optimised landmark positions (landmark order as in ``graph.landmarks``), None for a pose graph."""
     final_residuals: np.ndarray | None = None
     """``(m, d)`` edge residuals ``e = Log(Z⁻¹ X_i⁻¹ X_j)`` at ``poses`` (the solver's last
     evaluation; e.g. for χ² per edge without evaluating them again)."""

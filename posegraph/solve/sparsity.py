@@ -225,14 +225,17 @@ def _number_variables(held: np.ndarray, points: PointVariables, d: int):
 def _family_positions(system: "_System", pose_var, point_var, d: int, s: int) -> tuple:
     """The scatter maps of one landmark family: ``(hessian, gradient)``.
 
-    Binary: ``hessian`` = positions of ``(H_pose,pose (q·d²), H_point,point (q·s²), H_pose,point (q·d·s))``
-    and ``gradient`` ``(q·(d+s),)`` rows of ``[g_pose, g_point]``; unary: ``(H_point,point,)`` and ``(q·s,)``.
+    Binary: ``hessian`` = data positions of ``H_pose,pose (q·d²)``, ``H_point,point (q·s²)``,
+    ``H_pose,point (q·d·s)``, each raveled, one after the other, and ``gradient`` ``(q·(d+s),)`` rows
+    of ``[g_pose, g_point]`` per measurement; unary: of ``H_point,point`` and ``(q·s,)``. ``nnz`` /
+    the system's size where not stored (held variables, upper halves of diagonal blocks).
     """
     if pose_var is None:
-        return (system.diagonal_positions(point_var, s).reshape(-1),), system.rows(point_var, s).reshape(-1)
-    h_ii, h_jj, h_ij = system.pair_positions(pose_var, point_var, d, s)
-    gradient = np.concatenate([system.rows(pose_var, d), system.rows(point_var, s)], axis=1).reshape(-1)
-    return (h_ii.reshape(-1), h_jj.reshape(-1), h_ij.reshape(-1)), gradient
+        hessian, gradient = system.diagonal_positions(point_var, s), system.rows(point_var, s)
+    else:
+        hessian = np.concatenate([b.reshape(-1) for b in system.pair_positions(pose_var, point_var, d, s)])
+        gradient = np.concatenate([system.rows(pose_var, d), system.rows(point_var, s)], axis=1)
+    return _narrowest(hessian.reshape(-1), system.nnz), _narrowest(gradient.reshape(-1), system.dimension)
 
 
 @dataclass(frozen=True)
@@ -346,6 +349,8 @@ class _System:
         """``(m, z²)`` data positions of ``H_cc`` for variables ``c`` (−1: held); ``nnz`` where not stored."""
         a, b = _grid(z, z)
         free = variables >= 0
+        if not free.any():
+            return np.full((variables.shape[0], z * z), self.nnz, dtype=np.int64)
         slots = self.diagonal_slots(np.where(free, variables, 0), z)
         return np.where(free[:, None] & (a >= b), slots, self.nnz)
 
@@ -368,7 +373,8 @@ class _System:
     def rows(self, variables: np.ndarray, z: int) -> np.ndarray:
         """``(m, z)`` rows of ``g`` of each variable's entries; ``dimension`` for held variables."""
         free = variables >= 0
-        return np.where(free[:, None], self.offsets[np.where(free, variables, 0)][:, None] + np.arange(z), self.dimension)
+        safe = np.where(free, variables, 0) if self.offsets.size > 1 else np.zeros_like(variables)
+        return np.where(free[:, None], self.offsets[safe][:, None] + np.arange(z), self.dimension)
 
 
 def _narrowest(positions: np.ndarray, largest: int) -> np.ndarray:
