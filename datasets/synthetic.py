@@ -77,6 +77,8 @@ __all__ = [
     "read_outlier_indices",
     "write_dataset",
     "write_injected",
+    "landmark_graph",
+    "LANDMARK_TAGS",
     "main",
 ]
 
@@ -897,9 +899,105 @@ def _insert_edges(graph: PoseGraph, positions, pairs, measurements, information)
     )
     return injected, indices
 
+# --------------------------------------------------------------------------------------------
+# Landmark graphs: poses and points (posegraph.model.landmarks)
+
+LANDMARK_TAGS = {
+    ("position", 2): "EDGE_SE2_XY", ("position", 3): "EDGE_SE3_TRACKXYZ", ("bearing", 2): "EDGE_BEARING_SE2_XY",
+    ("bearing_range", 2): "BR", ("prior", 2): "EDGE_PRIOR_XY", ("prior", 3): "EDGE_PRIOR_XYZ",
+}  # fmt: skip
+"""File tag of each ``(kind, space dimension)`` the generator writes into :attr:`Observations.tag`."""
+
+
+def _landmark_truth(group: LieGroup, num_poses: int, num_landmarks: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """True poses ``(n, k, k)``, a random walk from the identity (steps of ~1 m, ~0.3 rad), and points
+    ``(L, s)``, each at 2–6 m in front of a random pose (a cone of ±60° about its x axis)."""
+    scale = np.full(group.dim, 0.3)
+    scale[list(group.translation_axes)] = 0.2
+    tangent = rng.normal(size=(num_poses - 1, group.dim)) * scale
+    tangent[:, group.translation_axes[0]] += 1.0
+    truth = _compose_chain(np.eye(group.matrix_size), group.exp(tangent))
+    s = group.space_dim
+    direction = np.concatenate([np.ones((num_landmarks, 1)), rng.uniform(-1.5, 1.5, (num_landmarks, s - 1))], axis=1)
+    body = direction / np.linalg.norm(direction, axis=1, keepdims=True) * rng.uniform(2.0, 6.0, (num_landmarks, 1))
+    seer = truth[rng.integers(0, num_poses, num_landmarks)]
+    return truth, np.einsum("lij,lj->li", seer[:, :s, :s], body) + seer[:, :s, s]
+
+
+def _landmark_family(group, kind, truth, points, per_landmark, noise, offsets, rng):
+    """One :class:`Observations` family of ``kind``: ``per_landmark`` distinct poses per landmark (one
+    prior per landmark), measurements predicted at the truth plus ``N(0, noise²)`` per row, Ω = I/σ²
+    (σ = ``noise``, or 1 for exact measurements when ``noise`` is 0)."""
+    from posegraph.model.landmarks import Observations, measurement_size
+    from posegraph.solve.landmark_residuals import landmark_residuals
+
+    n, L, s = len(truth), len(points), group.space_dim
+    r = measurement_size(kind, s)
+    if kind == "prior":
+        pose, landmark = np.full(L, -1, np.int64), np.arange(L, dtype=np.int64)
+    else:
+        count = min(per_landmark, n)
+        pose = np.argsort(rng.random((L, n)), axis=1)[:, :count].reshape(-1).astype(np.int64)  # distinct per landmark
+        landmark = np.repeat(np.arange(L, dtype=np.int64), count)
+    q = len(landmark)
+    O = group.exp(rng.normal(scale=0.3, size=(q, group.dim))) if offsets and kind == "position" else None
+    zero = Observations(kind, pose, landmark, np.zeros((q, r)), np.zeros((q, r, r)), O)
+    z = landmark_residuals(group, truth, points, zero) + noise * rng.standard_normal((q, r))  # predicted − 0
+    information = np.broadcast_to(np.eye(r) / (noise**2 if noise > 0 else 1.0), (q, r, r)).copy()
+    return Observations(kind, pose, landmark, z, information, O, tag=LANDMARK_TAGS[(kind, s)])
+
+
+def landmark_graph(
+    group: LieGroup = SE2,
+    num_poses: int = 10,
+    num_landmarks: int = 8,
+    kinds=("position",),
+    noise: float = 0.01,
+    seed: int = 0,
+    *,
+    per_landmark: int = 3,
+    offsets: bool = False,
+) -> tuple[PoseGraph, np.ndarray, np.ndarray]:
+    """A small landmark graph with its ground truth: ``(graph, truth_poses (n, k, k), truth_points (L, s))``.
+
+    The poses walk from the identity (:func:`_landmark_truth`); the pose edges are the odometry chain
+    ``k → k+1``, ``Z = X_k⁻¹X_{k+1}·Exp(δ)`` with ``δ ~ N(0, noise² I)`` and Ω = I/σ²; each kind of
+    ``kinds`` (:data:`posegraph.model.landmarks.KINDS`; ``"bearing"`` and ``"bearing_range"`` need SE(2))
+    is one family in which every landmark is seen from ``per_landmark`` distinct random poses (a
+    ``"prior"`` family: one prior per landmark), measured as predicted at the truth plus
+    ``N(0, noise²)`` per row (angles too, in radians), Ω = I/σ². ``offsets``: the ``"position"``
+    family gets random sensor offsets. ``noise = 0``: exact measurements and unit information.
+
+    Initial values: the poses are the noisy odometry composed from the true first pose; the landmark
+    positions are the truth plus ``N(0, (10·noise)²)`` per coordinate (exactly the truth when
+    ``noise = 0``). No pose or landmark is fixed (the first pose anchors the gauge, as in
+    :func:`posegraph.model.graph.component_anchors`). Same arguments, same graph.
+    """
+    from posegraph.model.landmarks import Landmarks
+
+    n, L = _check_count("num_poses", num_poses, 2), _check_count("num_landmarks", num_landmarks, 1)
+    rng = np.random.default_rng(seed)
+    truth, points = _landmark_truth(group, n, L, rng)
+    exact = group.between(truth[:-1], truth[1:])
+    steps = exact @ group.exp(noise * rng.standard_normal((n - 1, group.dim)))
+    information = np.broadcast_to(np.eye(group.dim) / (noise**2 if noise > 0 else 1.0), (n - 1, group.dim, group.dim))
+    families = tuple(_landmark_family(group, kind, truth, points, per_landmark, noise, offsets, rng) for kind in kinds)
+    initial_points = points + 10.0 * noise * rng.standard_normal(points.shape)
+    landmarks = Landmarks(
+        ids=np.arange(n, n + L, dtype=np.int64), positions=initial_points, observations=families,
+        vertex_tag="VERTEX_XY" if group.space_dim == 2 else "VERTEX_TRACKXYZ",
+    )  # fmt: skip
+    graph = PoseGraph(
+        ids=np.arange(n, dtype=np.int64), poses=_compose_chain(truth[0], steps), edge_from=np.arange(n - 1, dtype=np.int64),
+        edge_to=np.arange(1, n, dtype=np.int64), measurements=steps, information=information.copy(), group=group,
+        landmarks=landmarks,
+    )  # fmt: skip
+    return graph, truth, points
+
 
 # --------------------------------------------------------------------------------------------
 # Files
+
 
 
 def groundtruth_path(path: str | Path) -> Path:

@@ -389,3 +389,21 @@ def test_monocular_graph_drifts_in_scale_and_its_loop_closures_carry_the_true_sc
     exact = monocular(laps=3, nodes_per_lap=40, noise=NoiseParams(noiseless=True))
     odometry_scale_error = np.log(sim3.scale(exact.ground_truth[1:]) / sim3.scale(exact.ground_truth[:-1]))
     assert 2 * cost(exact.graph, exact.ground_truth) == pytest.approx(1e4 * np.sum(odometry_scale_error**2), rel=1e-6)
+
+
+@pytest.mark.parametrize("group_name,kinds", [("SE2", ("position", "bearing", "bearing_range", "prior")), ("SE3", ("position", "prior"))])
+def test_landmark_graph_is_exact_at_its_truth_and_deterministic(group_name, kinds):
+    from posegraph.lie.group import SE2, SE3
+    from posegraph.solve.landmark_residuals import landmark_residuals
+
+    group = {"SE2": SE2, "SE3": SE3}[group_name]
+    graph, truth, points = synthetic.landmark_graph(group, 9, 6, kinds, noise=0.0, seed=2, offsets=True)
+    assert graph.group is group and truth.shape == graph.poses.shape and points.shape == (6, group.space_dim)
+    assert [f.kind for f in graph.landmarks.observations] == list(kinds)
+    assert cost(graph, truth) == pytest.approx(0.0, abs=1e-20)
+    for family in graph.landmarks.observations:
+        np.testing.assert_allclose(landmark_residuals(group, truth, points, family), 0.0, atol=1e-12)
+    again, _, _ = synthetic.landmark_graph(group, 9, 6, kinds, noise=0.0, seed=2, offsets=True)
+    np.testing.assert_array_equal(again.landmarks.observations[0].measurements, graph.landmarks.observations[0].measurements)
+    noisy, _, _ = synthetic.landmark_graph(group, 9, 6, kinds, noise=0.05, seed=2)
+    assert not np.allclose(noisy.landmarks.positions, points)
