@@ -41,7 +41,7 @@ import numpy as np
 
 from posegraph.model.landmarks import Observations, measurement_size
 
-__all__ = ["landmark_residuals", "landmark_jacobians", "sensor_points", "wrap_angle"]
+__all__ = ["landmark_residuals", "landmark_jacobians", "landmark_cost", "sensor_points", "wrap_angle"]
 
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
@@ -141,3 +141,16 @@ def landmark_jacobians(group, poses: np.ndarray, points: np.ndarray, family: Obs
     J_e_pose = J_e_w @ _body_jacobian(w)
     J_e_point = J_e_w @ np.swapaxes(R, -1, -2)
     return e, J_e_pose, J_e_point
+
+
+def landmark_cost(group, poses: np.ndarray, points: np.ndarray, landmarks) -> float:
+    """``½ Σ eᵀΩe`` over every family of ``landmarks`` (:class:`posegraph.model.landmarks.Landmarks` or
+    None: 0) at poses ``(n, k, k)`` and points ``(L, s)``; the pose edges' cost is
+    :func:`posegraph.solve.residuals.cost`'s."""
+    if landmarks is None:
+        return 0.0
+    total = 0.0
+    for family in landmarks.observations:  # ≤ 4 families
+        e = landmark_residuals(group, poses, points, family)
+        total += 0.5 * float(np.einsum("qi,qij,qj->", e, np.asarray(family.information, np.float64), e))
+    return total
