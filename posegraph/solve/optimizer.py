@@ -204,13 +204,33 @@ def _initial_points(graph: PoseGraph, initial, poses: np.ndarray, given) -> np.n
     if given is None:
         from posegraph.init.landmarks import initialize_landmarks
 
-        given = initialize_landmarks(graph, poses)[0]
+        given, undetermined = initialize_landmarks(graph, poses)
+        _warn_undetermined(graph, undetermined)
     points = np.array(given, dtype=np.float64, copy=True)
     if points.shape != graph.landmarks.positions.shape:
         raise ValueError(f"initial landmark positions must have shape {graph.landmarks.positions.shape}, got {points.shape}")
     if not np.all(np.isfinite(points)):
         raise ValueError("initial landmark positions contain NaN or infinite values")
     return points
+
+
+def _warn_undetermined(graph: PoseGraph, undetermined: np.ndarray) -> None:
+    """An :class:`~posegraph.errors.InputWarning` naming the landmarks its measurements do not determine."""
+    if not undetermined.any():
+        return
+    import warnings
+
+    from posegraph.errors import InputWarning
+
+    ids = graph.landmarks.ids[undetermined]
+    shown = ", ".join(str(i) for i in ids[:10].tolist()) + (f" and {ids.size - 10} more" if ids.size > 10 else "")
+    where = f"{graph.source}: " if graph.source else ""
+    warnings.warn(
+        f"{where}{ids.size} landmark{'s' if ids.size > 1 else ''} not determined by {'their' if ids.size > 1 else 'its'} "
+        f"measurements (e.g. a bearing seen from one pose, parallel rays): {shown}; started at a guess, "
+        "held only by Levenberg-Marquardt's damping",
+        InputWarning, stacklevel=3,
+    )  # fmt: skip
 
 
 @dataclass

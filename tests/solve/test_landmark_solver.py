@@ -126,3 +126,18 @@ def test_pcg_is_refused_with_landmarks():
     graph, _, _ = landmark_graph(SE2, 6, 4, ("position",), noise=0.01, seed=1)
     with pytest.raises(ValueError, match="pcg"):
         optimize(graph, "file", SolverParams(linear_solver="pcg"), initial_points=graph.landmarks.positions)
+
+
+def test_a_landmark_seen_by_one_bearing_is_named(recwarn):
+    from posegraph.errors import InputWarning
+    from posegraph.model.landmarks import Observations
+
+    graph, _, _ = landmark_graph(SE2, 8, 4, ("position",), noise=0.01, seed=2)
+    landmarks = graph.landmarks
+    lonely = Observations("bearing", np.array([3]), np.array([4]), np.array([[0.3]]), np.array([[[100.0]]]), tag="EDGE_BEARING_SE2_XY")
+    landmarks = replace(landmarks, ids=np.append(landmarks.ids, 777), positions=np.vstack([landmarks.positions, [[0.0, 0.0]]]),
+                        fixed=np.append(landmarks.fixed, False), observations=landmarks.observations + (lonely,))  # fmt: skip
+    graph = replace(graph, landmarks=landmarks)
+    with pytest.warns(InputWarning, match=r"1 landmark not determined .*: 777;"):
+        result = optimize(graph, "odometry")
+    assert np.all(np.isfinite(result.points)) and result.final_cost <= result.initial_cost
