@@ -93,11 +93,14 @@ def sync_problem(graph: PoseGraph) -> SyncProblem:
 
     Raises :class:`~posegraph.errors.GraphError` for a graph SE-Sync's problem is not defined on: a
     group other than SE(2)/SE(3) (Sim(3)), position priors (a point says nothing of a rotation: no
-    term of SE-Sync's form), no edges, or information whose κ or τ is not finite and positive.
+    term of SE-Sync's form), landmarks (no variables of its form), no edges, or information whose κ or τ is not finite and positive.
     """
     if graph.group.name not in ("SE3", "SE2"):
         raise GraphError(f"SE-Sync's problem is defined on SE(2) and SE(3) graphs, not {graph.group.name}: "
                          "nothing to certify", graph.source)
+    if graph.landmarks is not None and graph.landmarks.count:
+        raise GraphError(f"the graph has {graph.landmarks.count} landmarks, which SE-Sync's problem has no variables "
+                         "for (it is defined on poses alone): nothing to certify", graph.source)
     priors = graph.priors
     if priors is not None and priors.num_position:
         raise GraphError("the graph has position priors, which SE-Sync's problem has no terms for (they measure "

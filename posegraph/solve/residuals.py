@@ -116,11 +116,22 @@ def squared_norms(residuals: np.ndarray, information: np.ndarray) -> np.ndarray:
     return np.einsum("mi,mi->m", residuals, weighted)
 
 
-def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
-    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, k, k)`` (the graph's own poses if None), priors' terms included.
+def cost(graph: PoseGraph, poses: np.ndarray | None = None, points: np.ndarray | None = None) -> float:
+    """``½ Σ e_ijᵀ Ω_ij e_ij`` at ``poses`` ``(n, k, k)`` (the graph's own poses if None), priors' and
+    landmark measurements' terms included.
 
+    Landmarks (``graph.landmarks``) at ``points`` ``(L, s)``; if None, the graph's own positions when
+    ``poses`` is None too, else each landmark from its measurements given ``poses``
+    (:func:`posegraph.init.landmarks.initialize_landmarks`), as :func:`posegraph.solve.optimize` starts.
     Equals gtsam's ``NonlinearFactorGraph.error(values)`` for the graph ``gtsam.readG2o`` builds.
     """
+    if graph.landmarks is not None and points is None:
+        if poses is None:
+            points = graph.landmarks.positions
+        else:
+            from posegraph.init.landmarks import initialize_landmarks
+
+            points = initialize_landmarks(graph, poses)[0]
     if poses is None:
         poses = graph.poses
     total = weighted_cost(edge_residuals(poses, graph), graph.information)
@@ -128,6 +139,10 @@ def cost(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
         from posegraph.solve.unary import prior_cost
 
         total += prior_cost(np.asarray(poses, dtype=np.float64), graph)
+    if graph.landmarks is not None:
+        from posegraph.solve.landmark_residuals import landmark_cost
+
+        total += landmark_cost(graph.group, poses, points, graph.landmarks)
     return total
 
 

@@ -153,3 +153,15 @@ def test_a_similarity_graph_or_one_with_position_priors_is_refused_not_certified
     with pytest.raises(GraphError, match="position priors"):
         sync_problem(chain_graph(rng, SE3, priors=make_priors(rng, SE3, 6)))
     sync_problem(chain_graph(rng, SE3))  # the same chain without priors is SE-Sync's problem
+
+
+def test_a_landmark_graph_is_refused_in_one_line():
+    from datasets.synthetic import landmark_graph
+    from posegraph.errors import GraphError
+    from posegraph.lie.group import SE2
+    from posegraph.certification.problem import sync_problem
+
+    graph, _, _ = landmark_graph(SE2, 5, 3, ("position",), noise=0.01, seed=0)
+    with pytest.raises(GraphError, match="3 landmarks, which SE-Sync's problem has no variables for") as caught:
+        sync_problem(graph)
+    assert "\n" not in str(caught.value)

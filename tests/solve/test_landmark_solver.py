@@ -141,3 +141,15 @@ def test_a_landmark_seen_by_one_bearing_is_named(recwarn):
     with pytest.warns(InputWarning, match=r"1 landmark not determined .*: 777;"):
         result = optimize(graph, "odometry")
     assert np.all(np.isfinite(result.points)) and result.final_cost <= result.initial_cost
+
+
+def test_cost_counts_the_landmark_terms_as_the_solver_starts():
+    from posegraph.solve.landmark_residuals import landmark_cost
+    from posegraph.solve.residuals import cost, edge_residuals, weighted_cost
+
+    graph, truth, _ = landmark_graph(SE2, 9, 5, ("position", "bearing"), noise=0.05, seed=9)
+    pose_terms = weighted_cost(edge_residuals(graph.poses, graph), graph.information)
+    assert cost(graph) == pytest.approx(pose_terms + landmark_cost(graph.group, graph.poses, graph.landmarks.positions, graph.landmarks), rel=1e-14)
+    assert cost(graph) > pose_terms
+    started = optimize(graph, truth, SolverParams(max_iterations=1))
+    assert cost(graph, truth) == pytest.approx(started.initial_cost, rel=1e-14)  # landmarks started from the poses
