@@ -327,13 +327,18 @@ def repair_option(p: argparse.ArgumentParser) -> None:
                         "file (the order in which every line gives a positive semi-definite matrix; a file where "
                         "both do and differ is refused), toro (xx xy yy tt xt yt) or g2o (xx xy xt yy yt tt)")
     p.add_argument("--poses-only", action="store_true",
-                   help="read a file whose measurements are largely of landmarks (LANDMARK2, EDGE_SE3_TRACKXYZ, "
-                        "EDGE_SE2_XY, BR...), which is refused otherwise, skipping them: the poses alone are optimised")
+                   help="skip the landmark lines (VERTEX_XY, EDGE_SE2_XY, EDGE_SE3_TRACKXYZ, BR, LANDMARK...), which are "
+                        "read otherwise, with one warning: the poses alone are read")
+    p.add_argument("--isam-information", choices=("sqrt", "information", "covariance"), default="sqrt",
+                   help="what the noise entries of iSAM's ODOMETRY, LANDMARK and POINT3 lines are: sqrt (default, "
+                        "iSAM's upper-triangular square-root information), information (as gtsam's readG2o reads "
+                        "ODOMETRY) or covariance (gtsam's victoria_park.txt)")
 
 
 def reader_options(args) -> dict:
     """The reader options of :func:`repair_option`'s arguments but ``--repair-information``, for :func:`read_graph`."""
-    return {"edge2_information": getattr(args, "edge2_information", "auto"), "poses_only": getattr(args, "poses_only", False)}
+    return {"edge2_information": getattr(args, "edge2_information", "auto"), "poses_only": getattr(args, "poses_only", False),
+            "isam_information": getattr(args, "isam_information", "sqrt")}
 
 
 INT_OPTION_MAX = 2**63 - 1

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.errors import G2oFormatError, GraphError, InputError
-from posegraph.model.graph import PoseGraph, connected_components
+from posegraph.model.graph import PoseGraph, connected_components, edge_components
+from posegraph.model.landmarks import observed_pairs
 from posegraph.io.g2o_format import RECORDS
 from posegraph.io.g2o_lines import Lines
 
@@ -275,12 +276,21 @@ def _resolve(
 
 
 def components_note(graph: PoseGraph, path: str) -> list[str]:
-    count, labels = connected_components(graph)
+    """A warning for a graph of several connected components; landmarks join the poses that see them."""
+    if graph.landmarks is None:
+        count, labels = connected_components(graph)
+    else:
+        pose, landmark = observed_pairs(graph.landmarks)
+        n = graph.num_vertices
+        count, labels = edge_components(n + graph.landmarks.count, np.concatenate([graph.edge_from, pose]),
+                                        np.concatenate([graph.edge_to, landmark + n]))
     if count == 1:
         return []
     sizes = np.sort(np.bincount(labels))[::-1]
     shown = ", ".join(str(size) for size in sizes[:5]) + (", …" if count > 5 else "")
     return [
+        f"{path}: the graph has {count} connected components (vertex counts {shown}, landmarks included); "
+        if graph.landmarks is not None else
         f"{path}: the graph has {count} connected components (vertex counts {shown}); "
         "the solver anchors each component separately"
     ]

@@ -28,6 +28,9 @@ EDGE_SE2_TAG = "EDGE_SE2"
 """g2o's 2D edge: ``EDGE_SE2 i j dx dy dθ`` and 6 information entries in ``[x, y, θ]`` order."""
 VERTEX2_TAG = "VERTEX2"
 """TORO's 2D vertex, as ``VERTEX_SE2``."""
+ODOMETRY_TAG = "ODOMETRY"
+"""iSAM's 2D edge, as ``EDGE_SE2`` but for its 6 entries: the square-root information, unless told
+otherwise (:mod:`posegraph.io.g2o_isam`)."""
 EDGE2_TAG = "EDGE2"
 """TORO's 2D edge, as ``EDGE_SE2`` but for the order of its 6 information entries, which is told
 per file (:mod:`posegraph.io.g2o_toro`; ``RECORDS`` reads them in g2o's order, after conversion)."""
@@ -124,6 +127,7 @@ RECORDS = {
     EDGE_SE2_TAG: _EDGE_2D,
     VERTEX2_TAG: _VERTEX_2D,  # TORO's, the same layout
     EDGE2_TAG: _EDGE_2D,  # its information converted to g2o's order first (posegraph.io.g2o_toro)
+    ODOMETRY_TAG: _EDGE_2D,  # iSAM's: its entries turned into g2o's information first (posegraph.io.g2o_isam)
 }
 """The vertex and edge tags read, in the order their checks run (vertices before edges)."""
 

@@ -6,7 +6,8 @@ Tags (g2o's ``types_slam3d`` / ``types_slam2d``; fields after the tag):
 * ``EDGE_SE3_PRIOR v pid x y z qx qy qz qw`` + 21 information entries in g2o's ``[t; R]`` order,
   permuted to ``[ω; v]`` as for ``EDGE_SE3:QUAT``; residual ``Log(Z⁻¹ X O)``, ``O`` of ``pid``;
 * ``EDGE_SE3_XYZ_PRIOR v pid x y z`` + 6 entries (3×3); residual ``t(X) − z`` (g2o reads ``pid`` but
-  its error does not use the offset);
+  its error does not use the offset; ``pid`` −1, what g2o writes when no offset is installed, is accepted
+  and written back as read);
 * ``EDGE_PRIOR_SE2 v x y θ`` + 6 entries in ``[x, y, θ]`` order; residual ``Log(Z⁻¹ X)``;
 * ``EDGE_PRIOR_SE2_XY v x y`` + 3 entries (2×2); residual ``t(X) − z``.
 
@@ -113,7 +114,7 @@ def read_priors(groups: dict[str, Lines], space_dim: int, ids: np.ndarray, path:
         part, part_notes = _parse_tag(groups[tag], tag, path, repair)
         parsed.append(part)
         notes += part_notes
-    offsets = _offsets(groups.get(PARAMS_TAG), path) if space_dim == 3 else {}
+    offsets = parse_offsets(groups.get(PARAMS_TAG), path) if space_dim == 3 else {}
     priors = _assemble(parsed, offsets, ids, space_dim, path)
     lines = _text(groups, present + ([PARAMS_TAG] if PARAMS_TAG in groups else []))
     return replace(priors, text=(lines, priors.checksum(ids))), notes
@@ -169,7 +170,7 @@ def _parse_tag(lines: Lines, tag: str, path: str, repair: bool) -> tuple[_Parsed
     return _Parsed(tag, records["ids"], rotations, records["t"], information, numbers), notes
 
 
-def _offsets(lines: Lines | None, path: str) -> dict[int, np.ndarray]:
+def parse_offsets(lines: Lines | None, path: str) -> dict[int, np.ndarray]:
     """``{parameter id: (4, 4) offset}`` of the ``PARAMS_SE3OFFSET`` lines (a repeated id refused)."""
     if lines is None:
         return {}
@@ -233,8 +234,9 @@ def _assemble(parsed: list[_Parsed], offsets: dict, ids: np.ndarray, space_dim: 
                           pose_information=part.information, pose_lines=part.numbers,
                           pose_offset_ids=part.ids[:, 1].copy() if has_parameter else None)
         else:
-            if has_parameter:
-                _offset_matrices(part, offsets, path)  # the parameter must exist, as g2o requires
+            if has_parameter:  # the parameter must exist, as g2o requires, but for −1: what g2o writes without one
+                _offset_matrices(part._replace(ids=part.ids[part.ids[:, 1] != -1], numbers=part.numbers[part.ids[:, 1] != -1]),
+                                 offsets, path)
             fields.update(position_vertex=vertex, position_measurements=part.translations,
                           position_information=part.information, position_lines=part.numbers,
                           position_offset_ids=part.ids[:, 1].copy() if has_parameter else None)

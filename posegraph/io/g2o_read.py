@@ -25,8 +25,12 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
-from posegraph.io.g2o_landmarks import landmark_refusal
-from posegraph.io.g2o_priors import PRIOR_RECORDS, PRIOR_TAGS, gauge_note, read_priors
+from posegraph.io.g2o_isam import odometry_records_in_g2o_order
+from posegraph.io.g2o_landmarks import (
+    LANDMARK_TAGS, assemble_landmarks, landmark_refusal, landmark_space_dim, landmark_vertex_ids, measured_pose_ids,
+    parse_landmarks,
+)
+from posegraph.io.g2o_priors import PARAMS_TAG, PRIOR_RECORDS, PRIOR_TAGS, gauge_note, parse_offsets, read_priors
 from posegraph.io.g2o_toro import EQUIV_TAG, edge2_records_in_g2o_order, merge_equivalent
 from posegraph.io.g2o_lines import Lines, group_lines, parse_fix, parse_records
 from posegraph.io.g2o_sim3 import is_sim3_file, read_sim3
@@ -68,7 +72,7 @@ class _Fix(NamedTuple):
 
 def read_g2o(
     path: str | os.PathLike, *, require_edges: bool = True, repair_information: bool = False,
-    edge2_information: str = "auto", poses_only: bool = False,
+    edge2_information: str = "auto", poses_only: bool = False, isam_information: str = "sqrt",
 ) -> PoseGraph:
     """Read a 3D or 2D pose graph from a g2o file.
 
@@ -97,8 +101,12 @@ def read_g2o(
         The order of TORO's ``EDGE2`` information entries: ``"auto"`` (default) tells it per file
         (:func:`posegraph.io.g2o_toro.edge2_information_order`), ``"toro"`` / ``"g2o"`` name it.
     poses_only:
-        A file whose measurements are largely of landmarks (:mod:`posegraph.io.g2o_landmarks`) is
-        refused unless this is True; then its landmark lines are skipped like other unread tags.
+        If True, the landmark lines (:mod:`posegraph.io.g2o_landmarks`) are skipped like other unread tags
+        (one warning) and ``graph.landmarks`` is None; by default they are read into ``graph.landmarks``.
+    isam_information:
+        What the noise entries of iSAM's ``ODOMETRY``, ``LANDMARK`` and ``POINT3`` lines are
+        (:mod:`posegraph.io.g2o_isam`): ``"sqrt"`` (iSAM's square-root information, the default),
+        ``"information"`` (as gtsam's ``readG2o`` reads ``ODOMETRY``) or ``"covariance"``.
 
     Returns a :class:`PoseGraph`: ``ids (n,)`` in file order, ``poses (n,4,4)``, ``edge_from``/``edge_to
     (m,)`` vertex *indices*, ``measurements (m,4,4)``, ``information (m,6,6)`` in ``[ω; v]`` order
@@ -118,7 +126,8 @@ def read_g2o(
     name = os.fspath(path)
     shown, source = ("<stdin>", None) if name == "-" else (name, os.path.abspath(name))  # "-": as Unix tools
     blocks = read_blocks(name)  # gzip/bzip2/xz undone; a binary file refused at its first block
-    graph = _parse(blocks, shown, source, require_edges, repair_information, (edge2_information, poses_only))
+    reading = (edge2_information, poses_only, isam_information)
+    graph = _parse(blocks, shown, source, require_edges, repair_information, reading)
     release_free_memory()  # the lines' and the tokens' pages, which the solver's large arrays would not reuse
     return graph
 
@@ -129,27 +138,31 @@ def _parse(
     groups, first_line = group_lines(blocks)
     if is_sim3_file(groups):  # VERTEX_SIM3:EXPMAP / EDGE_SIM3:EXPMAP: their own module
         return read_sim3(groups, first_line, path, source, require_edges=require_edges, repair_information=repair_information)
+    edge2_information, poses_only, isam_information = reading
     empty = Lines(np.zeros(0, dtype=np.int64), [])
-    read_here = READ_TAGS | {EQUIV_TAG} | (PRIOR_TAGS if PRIOR_RECORDS.keys() & groups.keys() else frozenset())
-    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in read_here}  # (offsets: for priors)
-    # Stage 1: the format of each line.
-    space_dim = space_dimension(groups, first_line, path)
+    skipped = {tag: len(group.rests) for tag, group in groups.items() if tag not in _read_here(groups, poses_only)}
+    # Stage 1: the format of each line (stage 2 of the landmark lines with it).
+    space_dim = _space_dim(groups, first_line, path, poses_only)
     table = records_of(space_dim)
     lines = {tag: groups.get(tag, empty) for tag in table}
     records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
-    edge2_information, poses_only = reading
     records = edge2_records_in_g2o_order(records, lines, path, edge2_information)  # TORO's order told apart
-    refusal = landmark_refusal(groups, set(_tags_of("edge", table)) | PRIOR_TAGS, poses_only, path)
+    records = odometry_records_in_g2o_order(records, lines, path, isam_information)  # iSAM's square roots
+    refusal = landmark_refusal(groups, set(_tags_of("edge", table)) | PRIOR_TAGS | LANDMARK_TAGS, poses_only, path)
     if refusal is not None and require_edges:
         raise refusal
     notes = _skipped_note(skipped, first_line, path) + ([str(refusal)] if refusal is not None else [])
+    parsed = None if poses_only else parse_landmarks(groups, space_dim, path, repair_information, isam_information)
     # Stage 2: the values.
     vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)
     notes += value_notes
     # Stage 3: an empty graph.
-    vertices, empty_notes = _vertices_or_refusal(vertices, edges, skipped, first_line, require_edges, table, path)
+    vertices, empty_notes = _vertices_or_refusal(
+        vertices, edges, (skipped, first_line), require_edges, table, path, measured_pose_ids(parsed)
+    )
     notes += empty_notes
     # Stage 4: the graph.
+    fix, landmark_fix = _split_fix(fix, vertices.ids, groups, parsed, poses_only)
     edge_index, fixed = topology(
         vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path,
         _tag_names(table, "vertex", "line"),
@@ -171,19 +184,60 @@ def _parse(
         # Every edge is an EDGE_SE3:QUAT (EDGE_SE2) line and none was repaired (a repair returns a
         # copy): the lines state the edges exactly, and the writer copies them (EdgeSource).
         graph = replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines[edge_tag].rests))
+    if parsed is not None:
+        graph, landmark_notes = _with_landmarks(graph, parsed, groups, landmark_fix, _tag_names(table, "vertex", "line"), path)
+        notes += landmark_notes
     priors, prior_notes = read_priors(groups, space_dim, graph.ids, path, repair_information)  # unary edges
     if priors is not None:
         graph, notes = replace(graph, priors=priors), notes + prior_notes
         notes += gauge_note(graph, path)
     graph, merge_notes = merge_equivalent(graph, groups, tuple(_tags_of("vertex", table)), path)  # TORO's EQUIV
     notes += merge_notes
-    if graph.num_edges:
+    if graph.num_edges or graph.landmarks is not None:
         notes += components_note(graph, path)
     for note in notes:
         warnings.warn(note, InputWarning, stacklevel=3)
     return graph
 
 
+def _read_here(groups: dict, poses_only: bool) -> frozenset:
+    """The tags read from a file of ``groups``: ``PARAMS_SE3OFFSET`` only for priors or landmarks, the landmark
+    tags unless the poses alone are asked for."""
+    landmarks = frozenset() if poses_only else LANDMARK_TAGS
+    uses_offsets = (PRIOR_RECORDS.keys() | landmarks) & groups.keys()
+    return READ_TAGS | {EQUIV_TAG} | landmarks | (PRIOR_TAGS if uses_offsets else frozenset())
+
+
+def _space_dim(groups: dict, first_line: dict, path: str, poses_only: bool) -> int:
+    """The file's dimension by its pose tags (mixed ones refused), else by its landmark tags, else 3."""
+    if RECORDS.keys() & groups.keys() or poses_only:
+        return space_dimension(groups, first_line, path)
+    return landmark_space_dim(groups) or 3
+
+
+def _split_fix(fix: _Fix, pose_ids: np.ndarray, groups: dict, parsed, poses_only: bool) -> tuple[_Fix, _Fix]:
+    """``(FIX of poses, FIX of landmarks)``: ids of landmark vertices (dropped when they are skipped) and of the
+    landmarks named by measurements (iSAM's) go to the landmarks; the rest, unknown ids included, to the poses."""
+    if poses_only:
+        candidates = np.array(sorted(landmark_vertex_ids(groups)), dtype=np.int64)
+    elif parsed is not None:
+        candidates = np.concatenate([parsed.vertices.ids] + [f.ids[:, min(1, f.ids.shape[1] - 1)] for f in parsed.families])
+    else:
+        return fix, _Fix(fix.ids[:0], fix.numbers[:0])
+    landmark = np.isin(fix.ids, candidates) & ~np.isin(fix.ids, pose_ids)
+    return _Fix(fix.ids[~landmark], fix.numbers[~landmark]), _Fix(fix.ids[landmark], fix.numbers[landmark])
+
+
+def _with_landmarks(graph: PoseGraph, parsed, groups: dict, fix: _Fix, pose_names: str, path: str):
+    """``(graph with its landmarks, warning texts)``; a ``FIX`` of a landmark not found refused."""
+    uses_offsets = any(family.ids.shape[1] == 3 for family in parsed.families)
+    offsets = parse_offsets(groups.get(PARAMS_TAG), path) if uses_offsets else {}
+    landmarks, unknown, numbers, notes = assemble_landmarks(
+        parsed, graph.ids, graph.poses, (fix.ids, fix.numbers), offsets, pose_names, path
+    )
+    if len(unknown):
+        raise GraphError(f"FIX names vertex {unknown[0]}, which has no vertex line", path, int(numbers[0]))
+    return replace(graph, landmarks=landmarks), notes
 def _tag_names(table: dict[str, Record], kind: str, noun: str) -> str:
     """``"VERTEX_SE3:QUAT lines (nor VERTEX3)"`` or ``"VERTEX_SE2 lines"``: the tags of one kind, for messages."""
     tags = [tag for tag, record in table.items() if record.kind == kind]
@@ -255,36 +309,45 @@ def _values(
 
 
 def _vertices_or_refusal(
-    vertices: _Poses, edges: _Measurements, skipped: dict[str, int], first_line: dict[str, int], require_edges: bool,
-    table: dict[str, Record], path: str,
+    vertices: _Poses, edges: _Measurements, unread: tuple, require_edges: bool, table: dict[str, Record], path: str,
+    landmark_pose_ids: np.ndarray,
 ) -> tuple[_Poses, list[str]]:  # fmt: skip
     """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
 
-    A file with no pose-graph line at all is described by its first line with data and at most
-    three more of its tags (``skipped`` keeps the tags in the order they first occur), not by
-    every word of a text file.
+    ``unread`` = ``(skipped, first_line)``: the tags not read with their counts and every tag's first
+    line. ``landmark_pose_ids`` are the poses the landmark measurements name: a graph whose poses are
+    joined only through landmarks has something to optimise. A file with no pose-graph line at all is
+    described by its first line with data and at most three more of its tags (``skipped`` keeps the
+    tags in the order they first occur), not by every word of a text file; one with vertices and
+    nothing to optimise names the lines it has.
     """
+    skipped, first_line = unread
     vertex_tags, edge_tags = _tag_names(table, "vertex", "lines"), _tag_names(table, "edge", "lines")
+    measured = len(edges.ids) or len(landmark_pose_ids)
     if len(vertices.ids) == 0:
-        if len(edges.ids) == 0:
+        if not measured:
             vertex_list = [tag for tag, record in RECORDS.items() if record.kind == "vertex"]
             raise GraphError(
-                f"the file has no {vertex_list[0]} lines (nor {', '.join(vertex_list[1:])}, nor edges): there is no "
-                f"pose graph to read{_first_unread_line(skipped, first_line)}",
+                f"the file has no {vertex_list[0]} lines (nor {', '.join(vertex_list[1:])}, nor edges, nor landmark "
+                f"measurements of poses): there is no pose graph to read{_first_unread_line(skipped, first_line)}",
                 path,
-            )
+            )  # fmt: skip
         if not require_edges:
             raise GraphError(
-                f"the file has no {vertex_tags}: its {len(edges.ids)} edge(s) name vertices but it gives no poses "
-                "to read",
+                f"the file has no {vertex_tags}: its {len(edges.ids)} edge(s) and {len(landmark_pose_ids)} observing "
+                "pose(s) name vertices but it gives no poses to read",
                 path,
-            )
-        vertices, note = _vertices_named_by_edges(edges, path)
+            )  # fmt: skip
+        vertices, note = _vertices_named_by_edges(edges, path, landmark_pose_ids)
         return vertices, [note]
-    if len(edges.ids) == 0 and require_edges:
+    if not measured and require_edges:
+        found = f"{len(vertices.ids)} pose vertex line(s)" + "".join(
+            f", {tag} ×{count}" for tag, count in list(skipped.items())[:4]
+        ) + (", …" if len(skipped) > 4 else "")  # fmt: skip
         raise GraphError(
-            f"the file has no {edge_tags}: there is nothing to optimise", path
-        )
+            f"the file has no {edge_tags} and no landmark measurement of a pose: there is nothing to optimise "
+            f"(it has {found})", path
+        )  # fmt: skip
     return vertices, []
 
 
@@ -391,11 +454,12 @@ def rotations_from_roll_pitch_yaw(angles: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def _vertices_named_by_edges(edges: _Measurements, path: str) -> tuple[_Poses, str]:
+def _vertices_named_by_edges(edges: _Measurements, path: str, extra: np.ndarray) -> tuple[_Poses, str]:
     """Vertices for a file with edges but no vertex lines: the ids its edges name, sorted, at the identity.
 
     This is how gtsam's ``sphere2500.txt`` comes (``EDGE3`` lines only; ``gtsam.readG2o`` returns
-    no initial values for it). The identity start is meaningless; the initialisers provide one.
+    no initial values for it), and iSAM's files (``ODOMETRY``, ``LANDMARK``); ``extra`` are the pose
+    ids the landmark measurements name. The identity start is meaningless; the initialisers provide one.
     """
     negative = np.flatnonzero((edges.ids < 0).any(axis=1))
     if negative.size:
@@ -405,7 +469,7 @@ def _vertices_named_by_edges(edges: _Measurements, path: str) -> tuple[_Poses, s
             path,
             int(edges.numbers[e]),
         )
-    ids = np.unique(edges.ids)
+    ids = np.unique(np.concatenate([edges.ids.reshape(-1), extra]))  # extra: poses named by landmark measurements
     n, r = len(ids), edges.translations.shape[1]
     vertices = _Poses(
         ids=ids,

@@ -140,6 +140,15 @@ def _vertex_line_numbers(groups: dict, tags: tuple, ids: set) -> set:
     return numbers
 
 
+def _remapped_landmarks(landmarks, vertex_map: np.ndarray):
+    """``landmarks`` with each observing pose index ``k`` replaced by ``vertex_map[k]`` (priors, −1, kept)."""
+    if landmarks is None:
+        return None
+    families = tuple(replace(f, pose=np.where(f.pose >= 0, vertex_map[np.maximum(f.pose, 0)], -1))
+                     for f in landmarks.observations)
+    return replace(landmarks, observations=families)
+
+
 def merge_equivalent(graph, groups: dict, vertex_tags: tuple, path: str):
     """``(graph with the EQUIV lines of ``groups`` merged, warning texts)`` (module docstring).
 
@@ -166,6 +175,7 @@ def merge_equivalent(graph, groups: dict, vertex_tags: tuple, path: str):
         edge_to=edge_to[edges], measurements=graph.measurements[edges], information=graph.information[edges],
         edge_lines=None if graph.edge_lines is None else graph.edge_lines[edges], edge_source=None,
         priors=None if graph.priors is None else graph.priors.remapped(new_index[target]),
+        landmarks=_remapped_landmarks(graph.landmarks, new_index[target]),
         kept_lines=tuple(graph.kept_lines) + tuple(texts[number] for number in sorted(texts)),
     )  # fmt: skip
     note = (f"{path}:{int(numbers[0])}: merged {int((~kept).sum())} vertices into the vertex their {EQUIV_TAG} line "

@@ -73,11 +73,13 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
 
 
 def _prior_lines(graph: PoseGraph) -> list[str]:
-    """The priors' lines after the edges (:mod:`posegraph.io.g2o_priors`), then ``graph.kept_lines``
-    (TORO's ``EQUIV`` merges, as read), each ending in a newline."""
+    """The priors' lines after the edges (:mod:`posegraph.io.g2o_priors`), the landmarks' lines
+    (:mod:`posegraph.io.g2o_landmarks_write`), then ``graph.kept_lines`` (TORO's ``EQUIV`` merges, as read),
+    each ending in a newline."""
+    from posegraph.io.g2o_landmarks_write import format_landmarks
     from posegraph.io.g2o_priors import format_priors
 
-    return [line + "\n" for line in format_priors(graph) + list(graph.kept_lines)]
+    return [line + "\n" for line in format_priors(graph) + format_landmarks(graph) + list(graph.kept_lines)]
 
 
 def _copied_lines(tag: str, lines: list) -> str:

@@ -212,8 +212,8 @@ def test_value_problems_come_before_a_missing_edge_list(text_file):
 
 
 def test_only_unsupported_tags_are_named(text_file):
-    text = lines("VERTEX_TRACKXYZ 0 1 2 3", "EDGE_SE3_TRACKXYZ 0 1 0 1 2 3 1 0 0 1 0 1")
-    check(text_file, text, GraphError, None, "no VERTEX_SE3:QUAT", "EDGE_SE3_TRACKXYZ", "VERTEX_TRACKXYZ")
+    text = lines("VERTEX_CAM 0 1 2 3", "EDGE_PROJECT_DISPARITY 0 1 0 1 2 3 1 0 0 1 0 1")  # (landmark tags are read now)
+    check(text_file, text, GraphError, None, "no VERTEX_SE3:QUAT", "EDGE_PROJECT_DISPARITY", "VERTEX_CAM")
 
 
 # ----------------------------------------------------------------------------- reporting
