@@ -179,11 +179,7 @@ def _parse(
         edge_lines=edges.numbers.copy(),
         group=_GROUP[space_dim],
     )
-    edge_tag = PRIMARY_EDGE_TAG[space_dim]
-    if len(edges.ids) and len(edges.ids) == len(lines[edge_tag].rests) and information is edges.information:
-        # Every edge is an EDGE_SE3:QUAT (EDGE_SE2) line and none was repaired (a repair returns a
-        # copy): the lines state the edges exactly, and the writer copies them (EdgeSource).
-        graph = replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines[edge_tag].rests))
+    graph = _with_edge_source(graph, edges, information, lines[PRIMARY_EDGE_TAG[space_dim]], PRIMARY_EDGE_TAG[space_dim])
     if parsed is not None:
         graph, landmark_notes = _with_landmarks(graph, parsed, groups, landmark_fix, _tag_names(table, "vertex", "line"), path)
         notes += landmark_notes
@@ -197,6 +193,14 @@ def _parse(
         notes += components_note(graph, path)
     for note in notes:
         warnings.warn(note, InputWarning, stacklevel=3)
+    return graph
+
+
+def _with_edge_source(graph: PoseGraph, edges: _Measurements, information: np.ndarray, lines: Lines, edge_tag: str):
+    """``graph`` with its edge lines kept for the writer when every edge is an ``EDGE_SE3:QUAT`` (``EDGE_SE2``)
+    line and none was repaired (a repair returns a copy): the lines state the edges exactly (EdgeSource)."""
+    if len(edges.ids) and len(edges.ids) == len(lines.rests) and information is edges.information:
+        return replace(graph, edge_source=EdgeSource.of(graph, edge_tag, lines.rests))
     return graph
 
 
