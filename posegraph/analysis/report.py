@@ -49,6 +49,7 @@ def graph_info(graph) -> dict:
     the range of their diagonal entries and of their eigenvalues, the range of the eigenvalues of
     the whole d×d matrices, and ``coupled_edges``, the number of edges whose Ω couples rotation and
     translation (a non-zero off-diagonal block); ``group`` (``"SE3"``, ``"SE2"`` or ``"SIM3"``);
+    ``landmarks`` (:func:`landmark_facts`: counts of the landmarks and of their measurements by kind);
     ``initial_cost``, ½ Σ eᵀ Ω e at the file's poses, and there
     ``chi2``, ``dof``, ``chi2_per_dof``, ``chi2_by_kind`` (:func:`chi2_summary`).
     """
@@ -80,10 +81,26 @@ def graph_info(graph) -> dict:
     info["group"] = graph.group.name
     priors = graph.priors
     info["priors"] = {"pose": priors.num_pose if priors else 0, "position": priors.num_position if priors else 0}
+    info["landmarks"] = landmark_facts(graph)
     chi2 = chi2_summary(graph)
     info["initial_cost"] = chi2["cost"]
     info.update(chi2=chi2["chi2"], dof=chi2["dof"], chi2_per_dof=chi2["chi2_per_dof"], chi2_by_kind=chi2["by_kind"])
     return info
+
+
+def landmark_facts(graph) -> dict:
+    """``{"count", "fixed", "dimension", "measurements": {kind: count}, "tags": {tag: count}}`` of the
+    graph's landmarks (all zero and empty for a pose graph)."""
+    landmarks = graph.landmarks
+    if landmarks is None:
+        return {"count": 0, "fixed": 0, "dimension": graph.group.space_dim, "measurements": {}, "tags": {}}
+    kinds: dict = {}
+    tags: dict = {}
+    for family in landmarks.observations:
+        kinds[family.kind] = kinds.get(family.kind, 0) + family.count
+        tags[family.tag] = tags.get(family.tag, 0) + family.count
+    return {"count": landmarks.count, "fixed": int(np.count_nonzero(landmarks.fixed)), "dimension": landmarks.space_dim,
+            "measurements": kinds, "tags": tags}
 
 
 def edge_chi2(graph, poses=None, residuals=None) -> np.ndarray:
@@ -106,7 +123,9 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
     ``chi2``), ``dof`` = d·edges − d·free poses (d the tangent dimension, the information matrices'
     size; free = neither ``FIX`` nor a gauge anchor; plus the dimensions of the priors' residuals),
     ``chi2_per_dof`` (NaN when dof ≤ 0), ``by_kind`` (``odometry``, ``loop_closure`` and, with
-    priors, ``prior``: ``count``, ``chi2``, ``chi2_per_edge``)
+    priors, ``prior``, with landmarks, ``landmark`` (their measurements, at the graph's landmark
+    positions; their residuals' rows count in ``dof``, their free points' ``s`` each against it):
+    ``count``, ``chi2``, ``chi2_per_edge``)
     and ``worst_edges`` (the :data:`WORST_EDGES` largest: ``line`` in the file or None,
     ``from_id``, ``to_id``, ``chi2``).
     """
@@ -128,6 +147,11 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
         by_kind["prior"] = {"count": len(prior), "chi2": float(prior.sum()),
                             "chi2_per_edge": float(prior.mean()) if len(prior) else float("nan")}
         total, dof = total + float(prior.sum()), dof + prior_dof
+    if graph.landmarks is not None:
+        landmark, landmark_dof = _landmark_chi2(graph, poses)
+        by_kind["landmark"] = {"count": len(landmark), "chi2": float(landmark.sum()),
+                               "chi2_per_edge": float(landmark.mean()) if len(landmark) else float("nan")}
+        total, dof = total + float(landmark.sum()), dof + landmark_dof
     lines = getattr(graph, "edge_lines", None)
     worst = []
     for e in np.argsort(-chi2, kind="stable")[:WORST_EDGES]:
@@ -136,6 +160,19 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
                       "chi2": float(chi2[e])})
     return {"cost": total / 2, "chi2": total, "dof": int(dof), "chi2_per_dof": total / dof if dof > 0 else float("nan"),
             "by_kind": by_kind, "worst_edges": worst}
+
+
+def _landmark_chi2(graph, poses=None) -> tuple[np.ndarray, int]:
+    """``((Σq,) χ² of each landmark measurement, Σ r·q − s·free landmarks)`` at ``poses`` and the
+    graph's landmark positions."""
+    from posegraph.solve.landmark_terms import landmark_errors
+
+    poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
+    landmarks = graph.landmarks
+    errors = landmark_errors(graph, poses, landmarks.positions)
+    rows = sum(e.shape[0] * e.shape[1] for e in errors.residuals)
+    free = landmarks.count - int(np.count_nonzero(landmarks.fixed))
+    return errors.squared, rows - landmarks.space_dim * free
 
 
 def _prior_chi2(graph, poses=None) -> tuple[np.ndarray, int]:
@@ -186,8 +223,11 @@ def optimize_report(
         "output": str(output_path),
         "num_vertices": graph.num_vertices,
         "num_edges": graph.num_edges,
+        "num_landmarks": graph.landmarks.count if graph.landmarks is not None else 0,
+        "num_landmark_measurements": graph.landmarks.num_measurements if graph.landmarks is not None else 0,
         "settings": _settings(init, result, params),
-        "cost_definition": "half chi2: 1/2 sum of e^T Omega e over the edges (gtsam's error; g2o's chi2 is twice it)",
+        "cost_definition": "half chi2: 1/2 sum of e^T Omega e over the edges, priors and landmark measurements "
+                           "(gtsam's error; g2o's chi2 is twice it)",
         "file_cost": float(file_cost),
         "initial_cost": float(result.initial_cost),
         "final_cost": float(result.final_cost),

@@ -293,12 +293,20 @@ def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_
         status(f"reading {path} ({size / 1e6:.1f} MB) …")
     with Ticker(status, f"reading {path}"), Timer() as t:
         graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information, **options)
-    status(f"read {display_name(path)}: {graph.num_vertices} vertices, {graph.num_edges} edges ({t.seconds:.3f} s)")
+    status(f"read {display_name(path)}: {graph_size(graph)} ({t.seconds:.3f} s)")
     from posegraph.cli import startup
 
     if graph.num_edges >= startup.LARGE_GRAPH_EDGES:
         startup.return_freed_memory()  # (read_g2o has just trimmed the heap: what is free is given back)
     return graph, t.seconds
+
+
+def graph_size(graph) -> str:
+    """``"6969 vertices, 6968 edges"``, and ``", 151 landmarks, 3640 landmark measurements"`` when it has them."""
+    text = f"{graph.num_vertices} vertices, {graph.num_edges} edges"
+    if graph.landmarks is not None:
+        text += f", {graph.landmarks.count} landmarks, {graph.landmarks.num_measurements} landmark measurements"
+    return text
 
 
 def display_name(path: str) -> str:

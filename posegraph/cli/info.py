@@ -81,6 +81,14 @@ _GROUP_NOTES = {"SE3": "", "SE2": " (2D: SE(2) poses)", "SIM3": " (Sim(3) poses:
 _TANGENT_SIZES = {"SE3": 6, "SE2": 3, "SIM3": 7}
 
 
+def _landmark_text(facts: dict) -> str:
+    """``"151 points (2D), 0 fixed; 3640 measurements: EDGE_SE2_XY ×3640 (position)"``."""
+    tags = ", ".join(f"{tag} ×{count}" for tag, count in facts["tags"].items())
+    kinds = ", ".join(facts["measurements"])
+    total = sum(facts["measurements"].values())
+    return f"{facts['count']} points ({facts['dimension']}D), {facts['fixed']} fixed; {total} measurements: {tags} ({kinds})"
+
+
 def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     """The text output's ``(label, value)`` lines from :func:`posegraph.analysis.report.graph_info`."""
     rows = [
@@ -91,6 +99,7 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
         ("edges", f"{info['num_edges']}: {info['num_odometry_edges']} odometry (consecutive ids), "
                   f"{info['num_loop_closures']} loop closures"),
         ("components", str(info["num_components"])),
+        *([("landmarks", _landmark_text(info["landmarks"]))] if info["landmarks"]["count"] else []),
         *([("priors", f"{info['priors']['pose']} pose, {info['priors']['position']} position (unary edges; "
                       "they hold the gauge of the components they reach)")] if sum(info["priors"].values()) else []),
         ("degree", f"min {info['degree_min']}, max {info['degree_max']}, mean {info['degree_mean']:.3f}, "

@@ -9,7 +9,7 @@ import sys
 from posegraph.cli.common import (
     reader_options,
     EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
-    check_distinct, check_figure, check_output, display_name, fmt_cost, non_negative_int, read_graph, repair_option,
+    check_distinct, check_figure, check_output, display_name, fmt_cost, graph_size, non_negative_int, read_graph, repair_option,
     interrupted_status, warn,
 )
 from posegraph.cli.robust import (
@@ -111,6 +111,7 @@ def run(args) -> int:
             result, certified = polish_certified(kept, result, params, status, seconds, dropped)
     status(f"{result.method}: {result.termination} after {result.iterations} iterations ({t_opt.seconds:.3f} s): "
            f"{stop_reason(result, params)}")
+    held = held.with_points(result.points)  # the landmarks where the solve left them: χ², covariances, output
     weights = final_weights(held, args, result, robust)
     prior_weights = final_prior_weights(held, args, result, robust)
     inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights)  # robust: χ², covariances of those kept
@@ -227,7 +228,7 @@ def _write_outputs(
     printed = []
     with StagedOutputs() as outputs:
         with Ticker(status, f"writing {args.output}"), Timer() as t_write:
-            written = output_graph(graph, weights, drop=args.drop_outliers, prior_weights=prior_weights)
+            written = output_graph(graph.with_points(result.points), weights, drop=args.drop_outliers, prior_weights=prior_weights)
             if args.output == STDIO:
                 printed.append(format_g2o(written, result.poses))
             else:
@@ -283,7 +284,7 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
     """The summary, on stdout (stderr when stdout carries the result or the report)."""
     out = sys.stderr if STDIO in (args.output, args.report) else sys.stdout
     lines = [
-        f"input:          {display_name(args.input)} ({graph.num_vertices} vertices, {graph.num_edges} edges)",
+        f"input:          {display_name(args.input)} ({graph_size(graph)})",
         f"file cost:      {fmt_cost(file_cost)}",
         f"initial cost:   {fmt_cost(result.initial_cost)} (after {args.init} initialisation)",
         f"final cost:     {fmt_cost(result.final_cost)} (cost = ½χ² = ½ Σ eᵀΩe, gtsam's error)",

@@ -137,6 +137,12 @@ class PoseGraph:
             raise ValueError(f"poses must have shape {self.poses.shape}, got {poses.shape}")
         return replace(self, poses=poses)
 
+    def with_points(self, points: np.ndarray | None) -> "PoseGraph":
+        """The same graph with its landmarks at ``points`` ``(L, s)`` (None, or a graph without landmarks: itself)."""
+        if points is None or self.landmarks is None:
+            return self
+        return replace(self, landmarks=self.landmarks.with_positions(points))
+
     def index_of(self, ids) -> np.ndarray:
         """Vertex indices of the given ids (``KeyError`` if one is absent)."""
         ids = np.asarray(ids, dtype=np.int64)
