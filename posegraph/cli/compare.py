@@ -93,6 +93,8 @@ def _run_gtsam(args, status: Status, ours: dict):
     from posegraph.crosscheck.gtsam_bridge import run_gtsam
 
     params, graph = ours["params"], ours["graph"]
+    if graph.landmarks is not None:
+        return _run_gtsam_landmarks(status, ours), "given"
     if args.gtsam_start == "same" or args.init == "odometry":
         gtsam_init, gtsam_initial = "given", ours["start"]
     else:
@@ -107,6 +109,22 @@ def _run_gtsam(args, status: Status, ours: dict):
         absolute_tolerance=params.absolute_tolerance,
     )
     return theirs, gtsam_init
+
+
+def _run_gtsam_landmarks(status: Status, ours: dict):
+    """gtsam on a landmark graph (:func:`posegraph.crosscheck.gtsam_landmarks.run_gtsam_landmarks`: its
+    ``BearingRangeFactor2D``, ``BearingFactor2D``, ``PriorFactorPoint2/3`` and a ``CustomFactor`` for
+    positions), always from posegraph's start (the poses and the landmarks they give)."""
+    from posegraph.crosscheck.gtsam_landmarks import run_gtsam_landmarks
+    from posegraph.init.landmarks import initialize_landmarks
+
+    params, graph = ours["params"], ours["graph"]
+    status(f"gtsam: {params.method}, start same as posegraph (landmark graphs: gtsam has no initialiser for them)")
+    return run_gtsam_landmarks(
+        graph, ours["start"], initialize_landmarks(graph, ours["start"])[0], method=params.method,
+        max_iterations=params.max_iterations, relative_tolerance=params.relative_tolerance,
+        absolute_tolerance=params.absolute_tolerance,
+    )
 
 
 def _compare(our_poses, their_poses, our_cost: float, their_cost: float) -> dict:

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import time
+
 import numpy as np
 
 from posegraph.crosscheck.gtsam_bridge import ANCHOR_SIGMA, gauge_priors, graph_to_gtsam, poses_to_values, require_gtsam, values_to_poses
@@ -135,16 +137,29 @@ class GtsamLandmarkResult:
     initial_cost: float
     final_cost: float
     iterations: int
+    converged: bool = True
+    """Whether gtsam stopped before ``max_iterations``."""
+    version: str = ""
+    """gtsam's version."""
+    seconds_read: float = 0.0
+    """Building gtsam's factor graph from ours."""
+    seconds_initialise: float = 0.0
+    """Converting the start to ``gtsam.Values``."""
+    seconds_optimise: float = 0.0
+    """gtsam's optimiser."""
 
 
 def run_gtsam_landmarks(
-    graph, poses: np.ndarray | None = None, points: np.ndarray | None = None, *,
+    graph, poses: np.ndarray | None = None, points: np.ndarray | None = None, *, method: str = "lm",
     max_iterations: int = 100, relative_tolerance: float = 1e-10, absolute_tolerance: float = 1e-12,
 ) -> GtsamLandmarkResult:  # fmt: skip
-    """gtsam's Levenberg–Marquardt on the landmark graph from ``poses``/``points`` (the graph's if None)."""
+    """gtsam's Levenberg–Marquardt (``method="gn"``: Gauss–Newton) on the landmark graph from
+    ``poses``/``points`` (the graph's if None)."""
     gtsam = require_gtsam()
     poses = graph.poses if poses is None else np.asarray(poses, np.float64)
+    began = time.perf_counter()
     factors, values = gtsam_landmark_graph(graph, poses, points)
+    built = time.perf_counter()
     full = gtsam.NonlinearFactorGraph(factors)
     full.push_back(gauge_priors(graph, poses))
     landmarks = graph.landmarks
@@ -154,12 +169,14 @@ def run_gtsam_landmarks(
         start = values_to_points(values, landmarks)
         for l in np.flatnonzero(landmarks.fixed).tolist():
             full.add(prior(landmark_key(l), start[l], noise))
-    params = gtsam.LevenbergMarquardtParams()
+    params = gtsam.LevenbergMarquardtParams() if method == "lm" else gtsam.GaussNewtonParams()
     params.setMaxIterations(int(max_iterations))
     params.setRelativeErrorTol(float(relative_tolerance))
     params.setAbsoluteErrorTol(float(absolute_tolerance))
-    optimizer = gtsam.LevenbergMarquardtOptimizer(full, values, params)
+    optimizer = (gtsam.LevenbergMarquardtOptimizer if method == "lm" else gtsam.GaussNewtonOptimizer)(full, values, params)
+    started = time.perf_counter()
     result = optimizer.optimize()
+    finished = time.perf_counter()
     pose_values = gtsam.Values(result)  # the poses alone, for the bridge's reader
     for l in range(landmarks.count if landmarks is not None else 0):
         pose_values.erase(landmark_key(l))
@@ -167,4 +184,6 @@ def run_gtsam_landmarks(
         poses=values_to_poses(pose_values, graph.ids, graph.group),
         points=values_to_points(result, landmarks) if landmarks is not None else np.zeros((0, graph.group.space_dim)),
         initial_cost=float(factors.error(values)), final_cost=float(factors.error(result)), iterations=int(optimizer.iterations()),
+        converged=int(optimizer.iterations()) < int(max_iterations), version=getattr(gtsam, "__version__", ""),
+        seconds_read=built - began, seconds_initialise=started - built, seconds_optimise=finished - started,
     )  # fmt: skip
