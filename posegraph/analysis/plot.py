@@ -125,6 +125,7 @@ def _draw_graph(ax, graph, positions: np.ndarray, colour: str, label: str, loop_
     path = positions[np.argsort(graph.ids, kind="stable")]
     ax.plot(*path.T, color=colour, linewidth=1.0, label=label)
     _draw_prior_positions(ax, graph, positions.shape[1], colour, label)
+    _draw_landmarks(ax, graph, positions.shape[1], colour, label)
     closing = ~graph.odometry_mask() if loop_closures else np.zeros(graph.num_edges, dtype=bool)
     if not np.any(closing):
         return
@@ -156,6 +157,14 @@ def _draw_prior_positions(ax, graph, dimension: int, colour: str, label: str) ->
         return
     points = np.pad(points, ((0, 0), (0, max(dimension - points.shape[1], 0))))[:, :dimension]
     ax.scatter(*points.T, marker="x", s=18, color=colour, linewidths=0.8, label=f"{label}: priors")
+
+
+def _draw_landmarks(ax, graph, dimension: int, colour: str, label: str) -> None:
+    """The graph's landmarks at their positions as dots, in ``dimension`` 2 (top view: x, y) or 3."""
+    if graph.landmarks is None or not graph.landmarks.count:
+        return
+    points = np.pad(graph.landmarks.positions, ((0, 0), (0, max(dimension - graph.landmarks.space_dim, 0))))[:, :dimension]
+    ax.scatter(*points.T, marker="o", s=6, color=colour, alpha=0.8, linewidths=0, label=f"{label}: landmarks")
 
 
 def _equal_scales(ax, lows: list, highs: list) -> None:

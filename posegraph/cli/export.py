@@ -16,7 +16,7 @@ DESCRIPTION = (
     "graphs are written at z = 0. --open3d writes an open3d.pipelines.registration.PoseGraph (read "
     "it with open3d.io.read_pose_graph; node k is the k-th vertex of the file, an edge i->j becomes "
     "source j, target i, transformation Z_ij; every edge certain unless --uncertain-loop-closures), "
-    "--ply the trajectory as a line set. --open3d and --ply need Open3D (pip install open3d; on "
+    "--ply the trajectory as a line set, --landmarks the points of a landmark graph ('id x y [z]' per line). --open3d and --ply need Open3D (pip install open3d; on "
     "Debian also apt install libusb-1.0-0)."
 )
 EXAMPLES = """
@@ -42,13 +42,15 @@ def add_arguments(p) -> None:
                         "them, as in Open3D's multiway registration); default: every edge certain")
     p.add_argument("--ply", metavar="LINES.ply", help="PLY line set of the trajectory to write")
     p.add_argument("--loop-closures", action="store_true", help="also put loop-closure edges in the PLY")
+    p.add_argument("--landmarks", metavar="POINTS.txt",
+                   help="the landmarks of a landmark graph, one 'id x y' (2D) or 'id x y z' (3D) line each, in id order")
 
 
 def _check_options(args) -> None:
     outputs = ((args.tum, "TUM trajectory"), (args.kitti, "KITTI trajectory"),
-               (args.open3d, "Open3D pose graph"), (args.ply, "line set"))
+               (args.open3d, "Open3D pose graph"), (args.ply, "line set"), (args.landmarks, "landmarks"))
     if not any(path for path, _ in outputs):
-        raise UsageError("nothing to export: give --tum, --kitti, --open3d and/or --ply with an output file")
+        raise UsageError("nothing to export: give --tum, --kitti, --open3d, --ply and/or --landmarks with an output file")
     if args.timestamps and not args.tum:
         raise UsageError("--timestamps applies to --tum only")
     if args.uncertain_loop_closures and not args.open3d:
@@ -74,6 +76,12 @@ def run(args) -> int:
 
     graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=args.repair_information,
                           **reader_options(args))
+    landmarks = graph.landmarks
+    if args.landmarks and (landmarks is None or not landmarks.count):
+        raise UsageError(f"--landmarks: {args.input} has no landmarks")
+    if (args.open3d or args.ply) and landmarks is not None and landmarks.count:
+        warn(f"Open3D's PoseGraph and the line set hold poses only: the file's {landmarks.count} landmarks are left out "
+             "(--landmarks writes them)")
     if args.open3d and graph.priors is not None and len(graph.priors):
         warn(f"{args.open3d}: Open3D's PoseGraph has no unary edges: the file's {len(graph.priors)} priors are left out")
     order = np.argsort(graph.ids, kind="stable")
@@ -89,8 +97,20 @@ def run(args) -> int:
             with outputs.writing(args.kitti) as tmp:
                 trajectory.write_kitti(tmp, graph.poses[order])
         _write_open3d(args, graph, outputs)
+        if args.landmarks:
+            with outputs.writing(args.landmarks) as tmp, open(tmp, "w") as f:
+                f.write(_landmark_lines(landmarks))
         outputs.commit()
     return EXIT_OK
+
+
+def _landmark_lines(landmarks) -> str:
+    """``"id x y[ z]"`` per landmark in id order, numbers as ``repr`` writes them (exact round trip)."""
+    import numpy as np
+
+    order = np.argsort(landmarks.ids, kind="stable")
+    rows = zip(landmarks.ids[order].tolist(), landmarks.positions[order].tolist())
+    return "".join(f"{i} " + " ".join(repr(v) for v in point) + "\n" for i, point in rows)
 
 
 def _write_open3d(args, graph, outputs) -> None:

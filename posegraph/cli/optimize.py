@@ -267,7 +267,7 @@ def _draw(args, status: Status, graph, result) -> bool:
     try:
         with Ticker(status, f"drawing {args.plot}"):
             plot_trajectories(
-                args.plot, [graph, graph], [f"input ({os.path.basename(display_name(args.input))})", "optimised"],
+                args.plot, [graph, graph.with_points(result.points)], [f"input ({os.path.basename(display_name(args.input))})", "optimised"],
                 [graph.poses, result.poses], title=os.path.basename(display_name(args.input)),
             )
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP

@@ -1,0 +1,105 @@
+"""The commands on landmark graphs: optimize, info, compare, certify, export, plot, batch, end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from datasets.synthetic import landmark_graph
+from posegraph.io.g2o import read_g2o, write_g2o
+from posegraph.lie.group import SE2, SE3
+from posegraph.solve import optimize
+from tests.cli.conftest import assert_one_error_line, run_cli
+from tests.optional import import_or_skip
+
+
+@pytest.fixture(scope="module")
+def landmark_file(tmp_path_factory):
+    """A 2D graph with positions, bearing-ranges and bearings (g2o tags where g2o has them)."""
+    graph, _, _ = landmark_graph(SE2, 30, 12, ("position", "bearing"), noise=0.02, seed=11, per_landmark=4)
+    path = tmp_path_factory.mktemp("landmarks") / "landmarks.g2o"
+    write_g2o(path, graph)
+    return path
+
+
+def test_optimize_writes_the_solved_landmarks_and_counts_them_in_chi2(landmark_file, tmp_path):
+    out, report = tmp_path / "out.g2o", tmp_path / "report.json"
+    run = run_cli("optimize", landmark_file, "-o", out, "--report", report)
+    assert run.returncode == 0, run.stderr
+    facts = json.loads(report.read_text())
+    expected = optimize(read_g2o(landmark_file))
+    assert facts["final_cost"] == pytest.approx(expected.final_cost, rel=1e-12)
+    assert facts["chi2"] == pytest.approx(2 * facts["final_cost"], rel=1e-12)  # landmark terms included
+    assert facts["num_landmarks"] == 12 and facts["chi2_by_kind"]["landmark"]["count"] == facts["num_landmark_measurements"]
+    graph = read_g2o(landmark_file)
+    rows = sum(f.count * f.measurements.shape[1] for f in graph.landmarks.observations)
+    assert facts["dof"] == 3 * graph.num_edges + rows - 3 * (graph.num_vertices - 1) - 2 * graph.landmarks.count
+    written = read_g2o(out)
+    np.testing.assert_allclose(written.landmarks.positions, expected.points, rtol=0, atol=1e-12)
+    assert not np.allclose(written.landmarks.positions, read_g2o(landmark_file).landmarks.positions)
+    assert "landmark measurements" in run.stdout
+
+
+def test_info_names_the_landmarks(landmark_file):
+    run = run_cli("info", landmark_file)
+    assert run.returncode == 0, run.stderr
+    line = next(line for line in run.stdout.splitlines() if line.startswith("landmarks:"))
+    assert "12 points (2D), 0 fixed" in line and "EDGE_SE2_XY ×" in line and "EDGE_BEARING_SE2_XY ×" in line
+
+
+def test_compare_agrees_with_gtsam(landmark_file, tmp_path):
+    import_or_skip("gtsam", "posegraph compare")
+    report = tmp_path / "compare.json"
+    run = run_cli("compare", landmark_file, "-q", "--report", report)
+    assert run.returncode == 0, run.stdout + run.stderr
+    facts = json.loads(report.read_text())
+    assert facts["agree"] and facts["posegraph"]["final_cost"] <= facts["gtsam"]["final_cost"] * (1 + 1e-9)
+
+
+def test_certify_refuses_a_landmark_graph_in_one_line(landmark_file):
+    run = run_cli("certify", landmark_file, "-q")
+    assert run.returncode == 2
+    assert_one_error_line(run, "12 landmarks", "SE-Sync's problem has no variables for")
+
+
+def test_export_writes_the_landmarks(landmark_file, tmp_path):
+    points = tmp_path / "points.txt"
+    run = run_cli("export", landmark_file, "--landmarks", points)
+    assert run.returncode == 0, run.stderr
+    table = np.loadtxt(points)
+    graph = read_g2o(landmark_file)
+    order = np.argsort(graph.landmarks.ids)
+    np.testing.assert_array_equal(table[:, 0], graph.landmarks.ids[order])
+    np.testing.assert_array_equal(table[:, 1:], graph.landmarks.positions[order])
+
+
+def test_export_landmarks_of_a_pose_graph_is_a_usage_error(tmp_path):
+    graph, _, _ = landmark_graph(SE3, 5, 2, ("position",), noise=0.01, seed=1)
+    from dataclasses import replace
+
+    path = tmp_path / "poses.g2o"
+    write_g2o(path, replace(graph, landmarks=None))
+    run = run_cli("export", path, "--landmarks", tmp_path / "points.txt")
+    assert run.returncode == 2 and not (tmp_path / "points.txt").exists()
+    assert_one_error_line(run, "has no landmarks")
+
+
+def test_optimize_plots_the_landmarks(landmark_file, tmp_path):
+    import_or_skip("matplotlib", "posegraph optimize --plot")
+    figure = tmp_path / "figure.png"
+    run = run_cli("optimize", landmark_file, "-o", tmp_path / "out.g2o", "--plot", figure, "-q")
+    assert run.returncode == 0, run.stderr
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_3d_landmark_file_with_offsets_is_solved_to_its_truth(tmp_path):
+    graph, truth, points = landmark_graph(SE3, 12, 8, ("position",), noise=0.0, seed=4, offsets=True)
+    path, out = tmp_path / "track.g2o", tmp_path / "out.g2o"
+    write_g2o(path, graph)
+    run = run_cli("optimize", path, "-o", out, "-q", "--init", "odometry")
+    assert run.returncode == 0, run.stderr
+    solved = read_g2o(out)
+    assert "EDGE_SE3_TRACKXYZ" in out.read_text() and "PARAMS_SE3OFFSET" in out.read_text()
+    np.testing.assert_allclose(solved.landmarks.positions, points, atol=1e-6)
