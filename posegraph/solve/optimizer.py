@@ -117,8 +117,7 @@ def optimize(
     *,
     analysis: Analysis | None = None,
     hold: np.ndarray | None = None,
-    initial_points: np.ndarray | None = None,
-    hold_points: np.ndarray | None = None,
+    initial_points: np.ndarray | None = None, hold_points: np.ndarray | None = None,
 ) -> OptimizeResult:
     """Minimise ``½ Σ eᵀ Ω e`` (or ``½ Σ ρ(eᵀΩe)`` with ``params.loss``) over the free poses.
 
@@ -146,8 +145,7 @@ def optimize(
         ``initial="file"``, else each landmark from its measurements given the starting poses
         (:func:`posegraph.init.landmarks.initialize_landmarks`).
     hold_points : (L,) bool array, optional
-        Landmarks held at their initial position besides the ``FIX`` ones, as ``hold`` holds
-        vertices (e.g. landmarks whose every measurement has weight 0 in a GNC solve).
+        Landmarks held at their start as ``hold`` holds vertices (e.g. all their measurements at weight 0).
 
     Returns
     -------
