@@ -53,7 +53,7 @@ from posegraph.robust.trust import (
     contradicted_odometry, best_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )
 
-__all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
+__all__ = ["RobustResult", "LandmarkOutlier", "known_inlier_mask", "landmark_outliers", "optimize_robust", "tls_alternation"]
 
 START_THRESHOLD_FACTOR = 2.0
 """The robust chordal start judges inliers against ``START_THRESHOLD_FACTOR · c̄²``: the chordal
