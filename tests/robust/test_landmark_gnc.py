@@ -86,10 +86,15 @@ def test_gnc_rejects_wrong_associations_2d(seed):
 def test_gnc_rejects_wrong_associations_3d():
     graph, _, points = landmark_graph(SE3, 30, 20, ("position",), noise=0.01, seed=1, per_landmark=4)
     bad, wrong = wrong_associations(graph, 0.15, 1)
+    family = bad.landmarks.observations[0]
+    lines = 1000 + 2 * np.arange(family.count)  # as read from a file
+    bad = replace(bad, landmarks=replace(bad.landmarks, observations=(replace(family, lines=lines),)))
     assert np.abs(optimize(bad).points - points).max() > 1.0
     robust = optimize_robust(bad)
     rejected = np.flatnonzero(robust.landmark_weights < 0.5)
     np.testing.assert_array_equal(rejected, wrong)
+    assert [o.line for o in robust.landmark_outliers] == lines[wrong].tolist()
+    assert [o.landmark for o in robust.landmark_outliers] == family.landmark[wrong].tolist()
     assert np.abs(robust.points - points).max() < 0.06
     assert robust.points.shape == points.shape
 
