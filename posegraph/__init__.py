@@ -41,6 +41,7 @@ _LAZY = {
     "InputError": "posegraph.errors",
     "marginal_covariances": "posegraph.analysis.covariance",
     "joint_covariance": "posegraph.analysis.covariance",
+    "landmark_covariances": "posegraph.analysis.covariance",
     "optimize_many": "posegraph.batch.many",
     "certify": "posegraph.certification.certificate",
     "Certificate": "posegraph.certification.certificate",

@@ -34,6 +34,7 @@ import numpy as np
 
 __all__ = [
     "marginal_covariances",
+    "landmark_covariances",
     "joint_covariance",
     "hessian_at",
     "factor_hessian",
@@ -44,14 +45,19 @@ __all__ = [
 ]
 
 
-def hessian_at(graph, poses):
+def hessian_at(graph, poses, points=None):
     """The Gauss-Newton matrix at ``poses`` ``(n, k, k)`` (``k`` = ``graph.group.matrix_size``): ``(pattern, data)``.
 
     ``pattern`` is the :class:`~posegraph.solve.sparsity.HessianPattern` (held vertices have no
     variables; ``pattern.variable_of`` maps vertices to block columns), ``data`` the CSC values
-    of H's lower triangle in that pattern.
+    of H's lower triangle in that pattern. A landmark graph's H (at ``points`` ``(L, s)``, the
+    graph's own positions when None) comes in the padded layout of :func:`landmark_hessian_at`:
+    ``n + L`` blocks of ``d``, landmark ``l`` the pseudo-vertex ``n + l``.
     """
     from posegraph.model.graph import held_vertices
+
+    if graph.landmarks is not None:
+        return landmark_hessian_at(graph, poses, points)
     from posegraph.solve.linearize import linearize
     from posegraph.solve.sparsity import analyze_pattern, hessian_values
 
@@ -65,6 +71,79 @@ def hessian_at(graph, poses):
 
         add_prior_hessian(pattern, data, linearize_priors(poses, graph, prior_errors(poses, graph)))
     return pattern, data
+
+
+def landmark_hessian_at(graph, poses, points=None):
+    """H of a landmark graph at ``poses`` ``(n, k, k)`` and ``points`` ``(L, s)`` (None: the graph's
+    positions) in a layout of equal ``d×d`` blocks: ``(pattern, data)``.
+
+    The solver's H has blocks of two sizes (``d`` per free pose, then ``s`` per free landmark:
+    :func:`posegraph.solve.sparsity.analyze_pattern` with ``points``); it is assembled exactly as the
+    solver does (:class:`~posegraph.solve.objective.Objective`, edges, priors and landmark families),
+    then each free landmark's ``s`` rows are moved into a block of ``d`` whose last ``d − s`` rows are
+    decoupled unit rows (zero off-diagonal, 1 on the diagonal). ``pattern`` is then a pose-graph
+    pattern over ``n + L`` pseudo-vertices (landmark ``l`` is ``n + l``, joined to each pose that
+    measures it; held: the graph's held vertices and the ``FIX`` landmarks), and ``H⁻¹`` of it holds
+    the solver's ``H⁻¹`` in the landmark blocks' first ``s`` rows and columns, the unit rows' inverse
+    (the identity) apart: the uniform blocks the selected inversion (:func:`selected_inverse`) needs,
+    for ``(d − s)/d`` more rows per landmark.
+    """
+    from posegraph.model.graph import held_vertices
+    from posegraph.model.landmarks import observed_pairs
+    from posegraph.solve.landmark_terms import point_variables
+    from posegraph.solve.sparsity import analyze_pattern
+
+    landmarks, n, d = graph.landmarks, graph.num_vertices, graph.group.dim
+    points = landmarks.positions if points is None else np.asarray(points, dtype=np.float64)
+    if points.shape != landmarks.positions.shape:
+        raise ValueError(f"points must have shape {landmarks.positions.shape}, got {points.shape}")
+    held = held_vertices(graph)
+    mixed = analyze_pattern(n, graph.edge_from, graph.edge_to, held, d, point_variables(graph))
+    data = _solver_hessian(graph, mixed, np.asarray(poses, dtype=np.float64), points)
+    pose, landmark = observed_pairs(landmarks)
+    padded = analyze_pattern(n + landmarks.count, np.r_[graph.edge_from, pose], np.r_[graph.edge_to, n + landmark],
+                             np.r_[held, landmarks.fixed], d)  # fmt: skip
+    return padded, _padded_values(mixed, data, padded)
+
+
+def _solver_hessian(graph, pattern, poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """CSC ``data`` of the solver's H (no loss) in ``pattern``, as :func:`posegraph.solve.optimize` assembles it."""
+    from posegraph.solve.landmark_terms import add_landmark_hessian
+    from posegraph.solve.objective import Objective
+    from posegraph.solve.sparsity import hessian_values
+    from posegraph.solve.unary import add_prior_hessian
+
+    objective = Objective(graph)
+    blocks = objective.linearize(poses, objective.evaluate(poses, points))
+    data = hessian_values(pattern, blocks.hessian_slice)
+    if blocks.priors is not None:
+        add_prior_hessian(pattern, data, blocks.priors)
+    add_landmark_hessian(pattern, data, blocks.landmarks)
+    return data
+
+
+def _padded_values(mixed, data: np.ndarray, padded) -> np.ndarray:
+    """``data`` of the mixed-block pattern ``mixed`` moved into the equal-block pattern ``padded``
+    (:func:`landmark_hessian_at`), the free landmarks' unit rows added."""
+    d, s, first = mixed.block_size, mixed.point_size, mixed.pose_dimension
+
+    def moved(rows):  # a mixed row's row in the padded system (pose rows stay; landmark j's a-th: d·(P + j) + a)
+        rows = np.asarray(rows, dtype=np.int64)
+        point = rows - first
+        return np.where(rows < first, rows, first + d * (point // max(s, 1)) + point % max(s, 1))
+
+    size = padded.dimension
+    keys = moved(mixed.entry_columns) * size + moved(mixed.indices)
+    padded_keys = padded.entry_columns.astype(np.int64) * size + padded.indices
+    position = np.searchsorted(padded_keys, keys)
+    if np.any(position >= len(padded_keys)) or np.any(padded_keys[np.minimum(position, len(padded_keys) - 1)] != keys):
+        raise RuntimeError("the padded pattern misses an entry of the landmark graph's H")
+    values = np.zeros(padded.nnz)
+    values[position] = data
+    free_points = int(np.count_nonzero(mixed.point_variable_of >= 0))
+    unit = (first + d * np.arange(free_points)[:, None] + np.arange(s, d)).ravel()
+    values[padded.diagonal[unit]] = 1.0
+    return values
 
 
 @dataclass(frozen=True, eq=False)
@@ -432,14 +511,17 @@ class _Factorisation:
     factor: BlockFactor
     """Blocks of ``L``, ``P H Pᵀ = L Lᵀ``."""
     position: np.ndarray
-    """``(n,)`` block column of each vertex in elimination order, ``-1`` for held vertices."""
+    """``(n,)`` block column of each vertex in elimination order, ``-1`` for held vertices; ``(n + L,)``
+    for a landmark graph, landmark ``l`` at ``n + l`` (:func:`landmark_hessian_at`)."""
 
 
-def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") -> _Factorisation:
+def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto", points=None) -> _Factorisation:
+    """The block factor of H at ``poses`` (and ``points``, landmark graphs: :func:`landmark_hessian_at`)."""
     d = graph.group.dim
     if np.shape(poses) != np.shape(graph.poses):
         raise ValueError(f"poses must have shape {np.shape(graph.poses)}, got {np.shape(poses)}")
-    pattern, data = hessian_at(graph, poses)
+    pattern, data = hessian_at(graph, poses, points)
+    vertices = pattern.num_vertices
     variable_of, p = pattern.variable_of, pattern.num_variables
     if p == 0:  # every vertex held: nothing to factorise
         empty = np.zeros(0, dtype=np.int64)
@@ -452,7 +534,7 @@ def _factorise(graph, poses, keep_scalar: bool = False, solver: str = "auto") ->
     rank = np.empty(p, dtype=np.int64)
     rank[permutation[::d] // d] = np.arange(p)  # block column of each variable
     free = variable_of >= 0
-    position = np.full(graph.num_vertices, -1, dtype=np.int64)
+    position = np.full(vertices, -1, dtype=np.int64)
     position[free] = rank[variable_of[free]]
     factor = block_factor(L, d)
     if not keep_scalar:  # the blocks hold the same numbers: let the scalar copy go
@@ -495,7 +577,7 @@ def _vertex_indices(graph, vertices) -> np.ndarray:
     return vertices
 
 
-def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
+def marginal_covariances(graph, poses, vertices=None, *, points=None) -> np.ndarray:
     """Marginal covariance of each requested vertex's pose: ``(k, d, d)``.
 
     ``poses``: shaped as ``graph.poses``, the point of linearisation (normally the optimised
@@ -508,16 +590,51 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     vertices' block columns and their elimination-tree ancestors (:func:`selected_inverse`).
     Raises :class:`posegraph.linalg.cholmod.NotPositiveDefiniteError` when H is not positive definite
     at ``poses``.
+
+    A landmark graph's H includes its landmark measurements (linearised at ``points`` ``(L, s)``, the
+    graph's positions when None; :func:`landmark_hessian_at`), so the poses' covariances are those
+    with the landmarks marginalised out; :func:`landmark_covariances` gives the landmarks'.
     """
     vertices = _vertex_indices(graph, vertices)
-    d = graph.group.dim
-    out = np.zeros((vertices.shape[0], d, d))
-    if vertices.size == 0:
+    return _diagonal_blocks(graph, poses, points, vertices, graph.group.dim)
+
+
+def landmark_covariances(graph, poses, points=None, landmarks=None) -> np.ndarray:
+    """Marginal covariance of each requested landmark's position: ``(k, s, s)``.
+
+    ``poses`` ``(n, k, k)`` and ``points`` ``(L, s)`` (None: ``graph.landmarks.positions``) are the
+    point of linearisation, normally the optimised ones (``OptimizeResult.poses``/``.points``);
+    ``landmarks``: ``(k,)`` landmark *indices* (``graph.landmarks.index_of(ids)`` for ids), all when
+    None; ``s = graph.landmarks.space_dim``. Block ``a`` is ``Cov(δ)`` of ``p + δ`` (world frame,
+    additive: the solver's landmark step) — gtsam's ``Marginals.marginalCovariance`` of a
+    ``Point2``/``Point3``. Gauge as :func:`marginal_covariances`: relative to the held vertices;
+    ``FIX`` landmarks get zero. One sparse Cholesky of the padded H (:func:`landmark_hessian_at`)
+    and the selected inversion over the requested landmarks' block columns and their ancestors.
+    """
+    if graph.landmarks is None:
+        raise ValueError("the graph has no landmarks")
+    count = graph.landmarks.count
+    landmarks = np.arange(count) if landmarks is None else np.asarray(landmarks)
+    if landmarks.ndim != 1 or not np.issubdtype(landmarks.dtype, np.integer) and landmarks.size:
+        raise ValueError("landmarks must be a 1-D array of landmark indices (graph.landmarks.index_of(ids) maps ids)")
+    landmarks = landmarks.astype(np.int64)
+    if np.any((landmarks < 0) | (landmarks >= count)):
+        raise IndexError(f"landmark indices must lie in [0, {count}), got {landmarks[(landmarks < 0) | (landmarks >= count)][:5].tolist()}")
+    s = graph.landmarks.space_dim
+    return _diagonal_blocks(graph, poses, points, graph.num_vertices + landmarks, graph.group.dim)[:, :s, :s]
+
+
+def _diagonal_blocks(graph, poses, points, blocks: np.ndarray, d: int) -> np.ndarray:
+    """``(k, d, d)`` diagonal blocks of ``H⁻¹`` of the (pseudo-)vertices ``blocks`` ``(k,)``, zero for held ones."""
+    out = np.zeros((blocks.shape[0], d, d))
+    if blocks.size == 0:
         return out
     with _one_blas_thread():
-        setup = _factorise(graph, poses)
-        K = setup.position[vertices]
+        setup = _factorise(graph, poses, points=points)
+        K = setup.position[blocks]
         free = K >= 0
+        if not free.any():
+            return out
         columns = np.unique(K[free])
         every = columns.shape[0] == setup.factor.indptr.shape[0] - 1
         sigma = selected_inverse(setup.factor, None if every else columns, overwrite=True)
@@ -526,7 +643,7 @@ def marginal_covariances(graph, poses, vertices=None) -> np.ndarray:
     return out
 
 
-def joint_covariance(graph, poses, vertices) -> np.ndarray:
+def joint_covariance(graph, poses, vertices, *, points=None) -> np.ndarray:
     """Joint covariance ``(k·d, k·d)`` of the poses of ``vertices`` ``(k,)`` (vertex indices).
 
     Block ``(a, b)`` (rows ``a·d : (a+1)·d``, columns ``b·d : (b+1)·d``) is ``Cov(δ_a, δ_b)`` of
@@ -535,7 +652,8 @@ def joint_covariance(graph, poses, vertices) -> np.ndarray:
     block lies in the factor's pattern (one vertex an elimination-tree ancestor of the other,
     joined in ``L``) they come from :func:`selected_inverse`; otherwise — the usual case for the
     two ends of a candidate loop closure — from ``k·d`` columns of ``H⁻¹``, two triangular solves
-    with ``L`` each (:func:`_solve_columns`).
+    with ``L`` each (:func:`_solve_columns`). A landmark graph's H includes its landmarks at ``points``
+    (:func:`marginal_covariances`).
     """
     vertices = _vertex_indices(graph, vertices)
     d = graph.group.dim
@@ -544,7 +662,7 @@ def joint_covariance(graph, poses, vertices) -> np.ndarray:
     if k == 0:
         return out.reshape(0, 0)
     with _one_blas_thread():
-        setup = _factorise(graph, poses, keep_scalar=True)
+        setup = _factorise(graph, poses, keep_scalar=True, points=points)
         free = np.flatnonzero(setup.position[vertices] >= 0)
         if free.size == 0:
             return out.reshape(k * d, k * d)

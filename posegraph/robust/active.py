@@ -31,7 +31,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from posegraph.model.graph import EdgeSource, PoseGraph, held_vertices
-from posegraph.robust.measurements import num_priors, weighted_priors
+from posegraph.robust.measurements import (
+    num_landmark_measurements, num_priors, poses_of, landmark_subset, weighted_landmarks, weighted_priors,
+)
 
 __all__ = ["edge_subgraph", "ActiveEdgeSolves", "AnalysedEdges", "DEFAULT_REANALYSE_FRACTION"]
 
@@ -131,8 +133,21 @@ class ActiveEdgeSolves:
         self.reanalyse_fraction = float(reanalyse_fraction)
         self._chordal: AnalysedEdges | None = None
         self._solver: AnalysedEdges | None = None
-        self.analyses = 0
-        """Symbolic analyses made (chordal and solver)."""
+        self._pose_part: ActiveEdgeSolves | None = None
+        self._analyses = 0
+
+    @property
+    def analyses(self) -> int:
+        """Symbolic analyses made (chordal and solver, the pose part's included)."""
+        return self._analyses + (0 if self._pose_part is None else self._pose_part.analyses)
+
+    def pose_part(self) -> "ActiveEdgeSolves":
+        """The solves of the graph without its landmarks (the same parameters), made once: the chordal
+        start of a landmark graph weighs its edges and priors only (the chordal relaxation has no points)."""
+        if self._pose_part is None:
+            self._pose_part = ActiveEdgeSolves(replace(self.graph, landmarks=None), self.params,
+                                               reanalyse_fraction=self.reanalyse_fraction)  # fmt: skip
+        return self._pose_part
 
     def serves(self, analysed: AnalysedEdges | None, active: np.ndarray) -> bool:
         """Whether ``analysed`` serves the active edges ``active`` ``(m,)`` bool under the policy."""
@@ -141,35 +156,41 @@ class ActiveEdgeSolves:
         return np.count_nonzero(active) >= self.reanalyse_fraction * np.count_nonzero(analysed.edges)
 
     def chordal(self, weights: np.ndarray) -> np.ndarray:
-        """``(n, 4, 4)`` chordal start of the weighted graph (:func:`posegraph.init.chordal_initialization`)."""
+        """``(n, 4, 4)`` chordal start of the weighted graph (:func:`posegraph.init.chordal_initialization`);
+        for a landmark graph, of its pose part (:meth:`pose_part`; the landmark weights are ignored)."""
         from posegraph.init.chordal import chordal_initialization, chordal_problem
 
+        if self.graph.landmarks is not None:
+            return self.pose_part().chordal(np.asarray(weights)[: self.graph.num_edges + num_priors(self.graph)])
         weights, active = self._checked(weights)
         self._chordal = self._analysed(
             self._chordal, active, lambda sub: chordal_problem(sub, self.params.linear_solver, self.params.ordering)
         )
-        weighted, counted, held = self._restriction(self._chordal, weights, active)
+        weighted, counted, held, _ = self._restriction(self._chordal, weights, active)
         if held is not None and weighted.priors is not None:  # the restricted system holds by today's anchors
             held = held_vertices(edge_subgraph(replace(self._chordal.graph, priors=None), np.flatnonzero(counted)))
         problem = self._chordal.analysis if held is None else self._chordal.analysis.restricted(counted, held)
         return chordal_initialization(weighted, problem=problem)
 
-    def least_squares(self, start: np.ndarray, weights: np.ndarray, callback=None):
-        """:class:`~posegraph.solve.OptimizeResult` of LM on the weighted graph from ``start`` ``(n, 4, 4)``."""
+    def least_squares(self, start, weights: np.ndarray, callback=None):
+        """:class:`~posegraph.solve.OptimizeResult` of LM on the weighted graph from ``start``: poses
+        ``(n, k, k)``, or a :class:`~posegraph.robust.measurements.Estimate` for a landmark graph."""
         from posegraph.solve import analyze, optimize
 
         weights, active = self._checked(weights)
         self._solver = self._analysed(self._solver, active, lambda sub: analyze(sub, self.params))
-        weighted, _, held = self._restriction(self._solver, weights, active)
+        weighted, _, held, held_points = self._restriction(self._solver, weights, active)
         params = self.params if callback is None else replace(self.params, callback=callback)
-        return optimize(weighted, initial=start, params=params, analysis=self._solver.analysis, hold=held)
+        points = None if self.graph.landmarks is None else start.points
+        return optimize(weighted, initial=poses_of(start), params=params, analysis=self._solver.analysis, hold=held,
+                        initial_points=points, hold_points=held_points)  # fmt: skip
 
     def _checked(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(weights (m + u,) float, active (m,) bool)``, after checking shape and values: one weight per
-        edge, then one per prior (``u`` of them, :func:`posegraph.robust.measurements.num_priors`); ``(m,)``
-        weighs the edges alone, the priors at 1."""
+        """``(weights (m + u + q,) float, active (m,) bool)``, after checking shape and values: one weight
+        per edge, then one per prior (``u`` of them, :func:`posegraph.robust.measurements.num_priors`),
+        then one per landmark measurement (``q``); ``(m,)`` weighs the edges alone, the rest at 1."""
         weights = np.asarray(weights, dtype=np.float64)
-        m, u = self.graph.num_edges, num_priors(self.graph)
+        m, u = self.graph.num_edges, num_priors(self.graph) + num_landmark_measurements(self.graph)
         if weights.shape == (m,) and u:
             weights = np.r_[weights, np.ones(u)]
         if weights.shape != (m + u,):
@@ -183,22 +204,38 @@ class ActiveEdgeSolves:
         if self.serves(current, active):
             return current
         sub = edge_subgraph(self.graph, np.flatnonzero(active))
-        self.analyses += 1
+        self._analyses += 1
         return AnalysedEdges(active.copy(), sub, analyse(sub))
 
     def _restriction(self, analysed: AnalysedEdges, weights: np.ndarray, active: np.ndarray):
-        """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None)`` for a solve over
-        ``S`` in which only the active edges (and priors) count; ``held``: the vertices the graph of
-        the active edges and priors holds (:func:`posegraph.model.graph.held_vertices`: fixed, one anchor
-        per component no active prior reaches), None when every edge of ``S`` and every prior is active."""
+        """``(graph of S weighted by w, counted (|S|,) bool, held (n,) bool or None, held_points (L,) bool
+        or None)`` for a solve over ``S`` in which only the active edges, priors and landmark measurements
+        count; ``held``: the vertices the graph of the active ones holds
+        (:func:`posegraph.model.graph.held_vertices`: fixed, one anchor per component no active prior
+        reaches), None when every edge of ``S``, prior and landmark measurement is active;
+        ``held_points``: the landmarks no active measurement reaches (None when there are none)."""
         keep = np.flatnonzero(analysed.edges)
-        m = self.graph.num_edges
+        m, u = self.graph.num_edges, num_priors(self.graph)
         information = analysed.graph.information * weights[keep][:, None, None]
         weighted = replace(analysed.graph, information=information, edge_source=None)
         if weighted.priors is not None:
-            weighted = weighted_priors(weighted, weights[m:])
+            weighted = weighted_priors(weighted, weights[m : m + u])
+        if weighted.landmarks is not None:
+            weighted = weighted_landmarks(weighted, weights[m + u :])
         counted = active[keep]
         if counted.all() and np.all(weights[m:] > 0):
-            return weighted, counted, None
-        return weighted, counted, held_vertices(edge_subgraph(replace(analysed.graph, priors=weighted.priors),
-                                                              np.flatnonzero(counted)))
+            return weighted, counted, None, None
+        counting = replace(analysed.graph, priors=weighted.priors)
+        held_points = None
+        if counting.landmarks is not None:
+            counting = landmark_subset(counting, weights[m + u :] > 0)
+            held_points = _unmeasured_points(counting.landmarks)
+        return weighted, counted, held_vertices(edge_subgraph(counting, np.flatnonzero(counted))), held_points
+
+
+def _unmeasured_points(landmarks) -> np.ndarray | None:
+    """``(L,)`` bool: the landmarks no measurement of ``landmarks`` reaches, None when every one is measured."""
+    measured = np.zeros(landmarks.count, dtype=bool)
+    for family in landmarks.observations:
+        measured[np.asarray(family.landmark, dtype=np.int64)] = True
+    return None if measured.all() else ~measured

@@ -45,13 +45,15 @@ import numpy as np
 from posegraph.model.graph import PoseGraph
 from posegraph.robust.active import DEFAULT_REANALYSE_FRACTION, ActiveEdgeSolves
 from posegraph.robust.gnc import GncIteration, GncParams, GncResult, inlier_thresholds, run_gnc
-from posegraph.robust.measurements import known_inlier_mask, measurement_dimensions, measurement_residuals, num_priors
+from posegraph.robust.measurements import (
+    Estimate, estimate_of, known_inlier_mask, measurement_dimensions, measurement_residuals, num_measurements, num_priors,
+)
 from posegraph.robust.starts import robust_chordal_start
 from posegraph.robust.trust import (
     contradicted_odometry, best_edges_of_unkept_pairs, known_inliers_above, parallel_odometry_mask, truncated_cost,
 )
 
-__all__ = ["RobustResult", "known_inlier_mask", "optimize_robust", "tls_alternation"]
+__all__ = ["RobustResult", "LandmarkOutlier", "known_inlier_mask", "landmark_outliers", "optimize_robust", "tls_alternation"]
 
 START_THRESHOLD_FACTOR = 2.0
 """The robust chordal start judges inliers against ``START_THRESHOLD_FACTOR · c̄²``: the chordal
@@ -103,6 +105,13 @@ class RobustResult:
     prior_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """``(u,)`` final weight of every prior (pose priors, then position priors): GNC judges them like
     the edges, never trusting them; a wrong GNSS fix ends at weight 0 like a wrong loop closure."""
+    points: np.ndarray | None = None
+    """``(L, s)`` optimised landmark positions, None for a pose graph."""
+    landmark_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """``(q,)`` final weight of every landmark measurement (families in order, point priors included):
+    GNC judges them like the loop closures, never trusting them; a wrong data association ends at 0."""
+    landmark_outliers: list = field(default_factory=list)
+    """:class:`LandmarkOutlier` per landmark measurement of final weight below 0.5, in family order."""
 
     @property
     def outlier_edges(self) -> np.ndarray:
@@ -116,11 +125,41 @@ class RobustResult:
 
     def summary(self) -> str:
         """Two lines: what GNC did, and the outliers found."""
+        landmarks = f", {len(self.landmark_outliers)} of {len(self.landmark_weights)} landmark measurements" if self.points is not None else ""
         return (
             f"GNC: {self.start.iterations} outer iterations ({self.start.reason}), then {len(self.history) - len(self.start.history)} "
             f"TLS rounds, {self.analyses} symbolic analyses; final cost {self.final_cost:.6g} ({self.seconds_total:.3f} s)\n"
-            f"outliers: {len(self.outlier_edges)} of {len(self.weights)} edges"
+            f"outliers: {len(self.outlier_edges)} of {len(self.weights)} edges{landmarks}"
         )
+
+
+@dataclass(frozen=True)
+class LandmarkOutlier:
+    """A landmark measurement GNC rejected (final weight below 0.5)."""
+
+    family: int
+    """Index of its family in ``graph.landmarks.observations``."""
+    index: int
+    """Its row in that family."""
+    kind: str
+    """The family's kind (``"position"``, ``"bearing"``, ``"bearing_range"``, ``"prior"``)."""
+    pose: int
+    """Index of the observing pose (−1 for a point prior)."""
+    landmark: int
+    """Index of the landmark it was associated with."""
+    line: int | None
+    """Its 1-based line in the file, None when not read from one."""
+
+
+def landmark_outliers(graph: PoseGraph, weights: np.ndarray) -> list:
+    """:class:`LandmarkOutlier` per landmark measurement of ``weights`` ``(q,)`` below 0.5 (families in order)."""
+    found, start = [], 0
+    for number, family in enumerate(() if graph.landmarks is None else graph.landmarks.observations):
+        for row in np.flatnonzero(np.asarray(weights[start : start + family.count]) < 0.5).tolist():
+            line = None if family.lines is None else int(family.lines[row])
+            found.append(LandmarkOutlier(number, row, family.kind, int(family.pose[row]), int(family.landmark[row]), line))
+        start += family.count
+    return found
 
 
 @dataclass
@@ -170,7 +209,7 @@ def optimize_robust(
     thresholds = inlier_thresholds(measurement_dimensions(graph), len(known), gnc)
     history: list = []
     run = _gnc_run(graph, initial, known & ~parallel, gnc, solves, thresholds, history, progress)
-    s = measurement_residuals(graph, run.result.poses)[:m]
+    s = measurement_residuals(graph, estimate_of(graph, run.result))[:m]
     fallback = _with_priors(graph, best_edges_of_unkept_pairs(graph, parallel[:m], run.weights[:m] >= 0.5, s))
     if fallback.any():  # ambiguous pairs GNC kept no edge of: trust the edge that fits best, from here
         run = _trust_more(graph, run, fallback, solves, thresholds, history, progress)
@@ -181,16 +220,19 @@ def optimize_robust(
         return runs[-1]
 
     run, released, suspicious = _release_doubtful(graph, run, rerun, thresholds, strict_known_inliers)
+    mu = m + num_priors(graph)
     return RobustResult(
         run.result.poses, run.weights[:m], run.result, run.start, history, sum(r.seconds_start for r in runs),
         time.perf_counter() - begin, solves.analyses, run.known[:m], np.flatnonzero(released[:m]),
-        np.flatnonzero(suspicious[:m]), run.weights[m:],
+        np.flatnonzero(suspicious[:m]), run.weights[m:mu], run.result.points, run.weights[mu:],
+        landmark_outliers(graph, run.weights[mu:]),
     )  # fmt: skip
 
 
 def _with_priors(graph, mask: np.ndarray) -> np.ndarray:
-    """``(m,)`` bool over the edges extended with False for the graph's priors: ``(m + u,)``."""
-    return np.r_[mask, np.zeros(num_priors(graph), dtype=bool)]
+    """``(m,)`` bool over the edges extended with False for the graph's priors and landmark
+    measurements: ``(m + u + q,)``."""
+    return np.r_[mask, np.zeros(num_measurements(graph) - graph.num_edges, dtype=bool)]
 
 
 def _release_doubtful(graph, run: _Run, rerun, thresholds, strict: bool):
@@ -207,15 +249,15 @@ def _release_doubtful(graph, run: _Run, rerun, thresholds, strict: bool):
         if not doubtful.any():
             break
         trial = rerun(run.known & ~doubtful)
-        fits = truncated_cost(measurement_residuals(graph, trial.result.poses), thresholds)
-        if fits >= truncated_cost(measurement_residuals(graph, run.result.poses), thresholds) - 0.5 * float(np.min(thresholds)):
+        fits = truncated_cost(measurement_residuals(graph, estimate_of(graph, trial.result)), thresholds)
+        if fits >= truncated_cost(measurement_residuals(graph, estimate_of(graph, run.result)), thresholds) - 0.5 * float(np.min(thresholds)):
             break  # trusting them fits the graph as well: the edges spanning them were wrong, not they
         if strict:
             suspicious |= doubtful & (trial.weights < 0.5)
             break
         released |= doubtful
         run = trial
-    suspicious |= known_inliers_above(measurement_residuals(graph, run.result.poses), run.known, thresholds)
+    suspicious |= known_inliers_above(measurement_residuals(graph, estimate_of(graph, run.result)), run.known, thresholds)
     return run, released, suspicious
 
 
@@ -224,7 +266,10 @@ def _gnc_run(graph, initial, known, gnc: GncParams, solves, thresholds, history:
     begin = time.perf_counter()
     if initial is None:
         loose = replace(gnc, inlier_threshold=START_THRESHOLD_FACTOR * inlier_thresholds(graph.group.dim, 1, gnc)[0])
-        start = robust_chordal_start(graph, known, loose, solves=solves, progress=progress)
+        if graph.landmarks is None:
+            start = robust_chordal_start(graph, known, loose, solves=solves, progress=progress)
+        else:
+            start = _landmark_start(graph, known, gnc, loose, solves, progress)
     else:
         start = _gnc_over_least_squares(graph, initial, known, gnc, solves, progress)
     seconds_start = time.perf_counter() - begin
@@ -241,7 +286,7 @@ def _gnc_run(graph, initial, known, gnc: GncParams, solves, thresholds, history:
 def _doubtful(graph, run: _Run, thresholds) -> np.ndarray:
     """``(m,)`` bool: ``run``'s trusted edges that fail the inlier test at its result, or that every
     edge spanning them contradicts (:mod:`posegraph.robust.trust`)."""
-    above = known_inliers_above(measurement_residuals(graph, run.result.poses), run.known, thresholds)
+    above = known_inliers_above(measurement_residuals(graph, estimate_of(graph, run.result)), run.known, thresholds)
     m = graph.num_edges
     return above | _with_priors(graph, contradicted_odometry(graph, run.known[:m], run.weights[:m] >= 0.5))
 
@@ -250,7 +295,8 @@ def _trust_more(graph, run: _Run, more: np.ndarray, solves, thresholds, history:
     """TLS rounds from ``run``'s result, trusting ``more`` ``(m,)`` bool edges besides its known ones."""
     known = run.known | more
     inliers = (run.weights >= 0.5) | known
-    weights, result = tls_alternation(solves, run.result.poses, inliers, _inlier_test(graph, known, thresholds), history, progress)
+    weights, result = tls_alternation(solves, estimate_of(graph, run.result), inliers, _inlier_test(graph, known, thresholds),
+                                      history, progress)  # fmt: skip
     return _Run(run.start, weights, result, known, run.seconds_start)
 
 
@@ -270,7 +316,7 @@ def tls_alternation(solves: ActiveEdgeSolves, poses, inliers, judged, history: l
     for _ in range(MAX_TLS_ROUNDS):
         weights = inliers.astype(np.float64)
         result = solves.least_squares(poses, weights)
-        poses = result.poses
+        poses = estimate_of(solves.graph, result)
         record = GncIteration(len(history), float("inf"), int(np.count_nonzero(inliers)), result.final_cost)
         history.append(record)
         if progress is not None:
@@ -283,15 +329,41 @@ def tls_alternation(solves: ActiveEdgeSolves, poses, inliers, judged, history: l
 
 
 def _gnc_over_least_squares(graph, initial, known, gnc: GncParams, solves: ActiveEdgeSolves, progress) -> GncResult:
-    """GNC whose weighted solve is LM from the last solution (gtsam's ``GncLMOptimizer``, warm-started)."""
-    from posegraph.solve.optimizer import _initial_poses
+    """GNC whose weighted solve is LM from the last solution (gtsam's ``GncLMOptimizer``, warm-started).
+    A landmark graph starts from the landmark positions :func:`~posegraph.solve.optimize` would (the
+    file's with ``initial="file"``, else each landmark from its measurements given the poses)."""
+    from posegraph.solve.optimizer import _initial_points, _initial_poses
 
+    poses = _initial_poses(graph, initial)
+    start = poses if graph.landmarks is None else Estimate(poses, _initial_points(graph, initial, poses, None))
+    return _run_gnc_least_squares(graph, start, known, gnc, solves, progress)
+
+
+def _run_gnc_least_squares(graph, start, known, gnc: GncParams, solves, progress, initial_weights=None) -> GncResult:
+    """:func:`run_gnc` over LM solves of ``graph`` from the state ``start`` (poses or an Estimate)."""
     return run_gnc(
-        lambda poses: measurement_residuals(graph, poses),
-        lambda start, w: solves.least_squares(start, w).poses,
-        _initial_poses(graph, initial),
+        lambda state: measurement_residuals(graph, state),
+        lambda state, w: estimate_of(graph, solves.least_squares(state, w)),
+        start,
         known,
         gnc,
         dimension=measurement_dimensions(graph),
+        initial_weights=initial_weights,
         progress=progress,
     )
+
+
+def _landmark_start(graph, known, gnc: GncParams, loose: GncParams, solves: ActiveEdgeSolves, progress) -> GncResult:
+    """The start of a landmark graph: the robust chordal start of its pose part (edges and priors,
+    :meth:`ActiveEdgeSolves.pose_part`), each landmark placed from its measurements given those poses
+    (:func:`posegraph.init.landmarks.initialize_landmarks`: least squares, wrong associations included),
+    then GNC over LM on the whole graph from there, the edges and priors first weighted as the chordal
+    GNC left them and every landmark measurement at 1. Its ``history`` and ``iterations`` hold both GNC runs'."""
+    from posegraph.init.landmarks import initialize_landmarks
+
+    mu = graph.num_edges + num_priors(graph)
+    poses = robust_chordal_start(solves.pose_part().graph, known[:mu], loose, solves=solves.pose_part(), progress=progress)
+    points, _ = initialize_landmarks(graph, poses.poses)
+    weights = np.r_[poses.weights, np.ones(len(known) - mu)]
+    result = _run_gnc_least_squares(graph, Estimate(poses.poses, points), known, gnc, solves, progress, weights)
+    return replace(result, iterations=poses.iterations + result.iterations, history=poses.history + result.history)

@@ -117,7 +117,7 @@ def optimize(
     *,
     analysis: Analysis | None = None,
     hold: np.ndarray | None = None,
-    initial_points: np.ndarray | None = None,
+    initial_points: np.ndarray | None = None, hold_points: np.ndarray | None = None,
 ) -> OptimizeResult:
     """Minimise ``½ Σ eᵀ Ω e`` (or ``½ Σ ρ(eᵀΩe)`` with ``params.loss``) over the free poses.
 
@@ -144,6 +144,8 @@ def optimize(
         Starting landmark positions of a graph with landmarks; None: the file's with
         ``initial="file"``, else each landmark from its measurements given the starting poses
         (:func:`posegraph.init.landmarks.initialize_landmarks`).
+    hold_points : (L,) bool array, optional
+        Landmarks held at their start as ``hold`` holds vertices (e.g. all their measurements at weight 0).
 
     Returns
     -------
@@ -156,7 +158,7 @@ def optimize(
     if analysis is not None and not analysis.matches(graph):
         raise ValueError("the analysis was made for other edges than the graph's")
     poses = _initial_poses(graph, initial)
-    run = _Run(graph, (poses, _initial_points(graph, initial, poses, initial_points)), params, analysis, hold)
+    run = _Run(graph, (poses, _initial_points(graph, initial, poses, initial_points)), params, analysis, hold, hold_points)
     early = run.nothing_to_do()
     if early is not None:
         return run.result(early, [], start)
@@ -283,14 +285,17 @@ class _Outcome:
 class _Run:
     """The state of one :func:`optimize` call: the problem, the current poses and cost, λ, the clock."""
 
-    def __init__(self, graph: PoseGraph, start: tuple, params: SolverParams, analysis: Analysis | None, hold=None):
+    def __init__(self, graph: PoseGraph, start: tuple, params: SolverParams, analysis: Analysis | None, hold=None,
+                 hold_points=None):
         setup_start = time.perf_counter()
         self.graph, self.params = graph, params
         self.poses, self.points = start
         analysis = analyze(graph, params) if analysis is None else analysis
         self.free = ~analysis.held
         self.pattern: HessianPattern = analysis.pattern
-        self.pinned = None if hold is None else PinnedVariables.of(self.pattern, hold)
+        if hold is None and hold_points is not None:
+            hold = np.zeros(graph.num_vertices, dtype=bool)
+        self.pinned = None if hold is None else PinnedVariables.of(self.pattern, hold, hold_points)
         self.objective = Objective(graph, params.loss)
         self.evaluation = self.objective.evaluate(self.poses, self.points)
         self.initial_cost = self.evaluation.cost

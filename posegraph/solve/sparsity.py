@@ -443,20 +443,28 @@ class PinnedVariables:
     step is exactly 0 and the other variables solve the system with them eliminated (held)."""
 
     rows: np.ndarray
-    """``(d·q,)`` rows of ``g`` (and of H) of the ``q`` pinned vertices."""
+    """``(d·q + s·l,)`` rows of ``g`` (and of H) of the ``q`` pinned vertices and ``l`` pinned landmarks."""
     coupling: np.ndarray
     """``(nnz,)`` bool: entries of ``data`` in a pinned row or column."""
     diagonal: np.ndarray
     """``(d·q,)`` positions in ``data`` of the pinned rows' diagonal entries."""
 
     @classmethod
-    def of(cls, pattern: HessianPattern, vertices: np.ndarray) -> "PinnedVariables":
-        """For ``vertices`` ``(n,)`` bool (vertices the pattern already holds are ignored)."""
+    def of(cls, pattern: HessianPattern, vertices: np.ndarray, points: np.ndarray | None = None) -> "PinnedVariables":
+        """For ``vertices`` ``(n,)`` bool and, with landmarks, ``points`` ``(L,)`` bool (those the
+        pattern already holds are ignored)."""
         vertices = np.asarray(vertices, dtype=bool)
         if vertices.shape != (pattern.num_vertices,):
             raise ValueError(f"held vertices must have shape ({pattern.num_vertices},), got {vertices.shape}")
         variables = pattern.variable_of[vertices & (pattern.variable_of >= 0)]
         rows = (pattern.block_size * variables[:, None] + np.arange(pattern.block_size)).ravel()
+        if points is not None and pattern.point_size:
+            points = np.asarray(points, dtype=bool)
+            if points.shape != pattern.point_variable_of.shape:
+                raise ValueError(f"held points must have shape {pattern.point_variable_of.shape}, got {points.shape}")
+            free_rank = pattern.point_variable_of[points & (pattern.point_variable_of >= 0)] - pattern.num_pose_variables
+            point_rows = pattern.pose_dimension + pattern.point_size * free_rank[:, None] + np.arange(pattern.point_size)
+            rows = np.r_[rows, point_rows.ravel()].astype(np.int64)
         pinned_row = np.zeros(pattern.dimension, dtype=bool)
         pinned_row[rows] = True
         coupling = pinned_row[pattern.indices] | pinned_row[pattern.entry_columns]
