@@ -115,10 +115,10 @@ def cost_excess(opt: IncrementalOptimizer, params=None) -> tuple[int, float, flo
     from dataclasses import replace
 
     from posegraph.solve import SolverParams, optimize
-    from posegraph.solve.residuals import cost
+    from posegraph.solve.objective import Objective
 
     graph = replace(opt.graph(), fixed=opt.held())
-    ours = cost(graph)
+    ours = Objective(graph, opt.params.loss).evaluate(graph.poses).cost
     params = params or SolverParams(relative_tolerance=1e-12, absolute_tolerance=0.0, max_iterations=200,
                                     loss=opt.params.loss)
     best = optimize(graph, initial=graph.poses, params=params).final_cost
