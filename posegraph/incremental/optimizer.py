@@ -88,7 +88,7 @@ class IncrementalOptimizer:
     """
 
     def __init__(self, group=SE3, *, tolerance: float = 1e-8, params: SolverParams | None = None, verify: bool = False,
-                 wildfire: float = 1e-2, initial_radius: int = 2, full_fraction: float = 0.5):
+                 wildfire: float = 1e-2, initial_radius: int = 8, full_fraction: float = 0.5):
         if not tolerance > 0:
             raise ValueError(f"tolerance must be positive, got {tolerance}")
         self.group, self.tolerance, self.verify = group, float(tolerance), bool(verify)

@@ -110,7 +110,7 @@ def replay(graph, batch_size: int = 1, *, optimizer: IncrementalOptimizer | None
 
 
 def cost_excess(opt: IncrementalOptimizer, params=None) -> tuple[int, float, float, float]:
-    """``(poses, cost, batch cost, (cost − batch) / batch)``: the estimate against a batch solve of the
+    """``(poses, cost, batch cost, (cost − batch) / max(batch, 1e-9))``: the estimate against a batch solve of the
     same graph (LM from the estimate, relative tolerance 1e-12, so it ends at the optimum nearest)."""
     from dataclasses import replace
 
@@ -123,4 +123,4 @@ def cost_excess(opt: IncrementalOptimizer, params=None) -> tuple[int, float, flo
                                     loss=opt.params.loss)
     best = optimize(graph, initial=graph.poses, params=params).final_cost
     best = min(best, ours)
-    return graph.num_vertices, ours, best, (ours - best) / max(best, 1e-300)
+    return graph.num_vertices, ours, best, (ours - best) / max(best, 1e-9)
