@@ -27,6 +27,7 @@ FLOORS = (
     ("solve",),  # the trust-region solver (it starts from init)
     ("crosscheck",),  # gtsam beside ours: the bridge, the Jacobian checks
     ("robust", "certification", "analysis"),  # GNC; SE-Sync's certificate; covariances, metrics, reports, plots
+    ("incremental",),  # the incremental optimiser (it reads covariances from analysis)
     ("cli", "batch"),  # the command, and batch, which runs the command over many files
 )
 """Folders on one floor may import each other's modules (only ``cli`` and ``batch`` do: the command has

@@ -14,7 +14,7 @@ import sys
 
 from posegraph.cli.common import PROG, ArgumentParser
 
-COMMANDS = ("optimize", "batch", "compare", "verify-jacobians", "info", "eval", "plot", "export", "certify")
+COMMANDS = ("optimize", "batch", "compare", "verify-jacobians", "info", "eval", "plot", "export", "certify", "replay")
 """The subcommands, in the order of ``--help``; ``posegraph.cli.<name with _ for ->`` implements each."""
 
 DESCRIPTION = "SE(3) pose-graph optimisation over g2o files, cross-checked against gtsam."

@@ -1,0 +1,341 @@
+"""The incremental optimiser: a graph that grows in batches and an estimate kept at its optimum.
+
+Design (``docs/incremental.md``):
+
+* **New poses by composition.** A new vertex reached through a new edge from a vertex already placed
+  is put where that edge says (``X_j = X_i Z``), breadth first over the batch's edges. An edge used so
+  (a *tree* edge) has a zero residual and adds nothing to the gradient: a batch made only of such edges
+  (odometry) leaves the estimate at the optimum of the new graph exactly, with no linear algebra.
+* **Gauss-Newton where the update acts.** Every other edge, a prior, a removed edge or an anchor
+  released by a join *touches* its vertices. Gauss-Newton runs on the free vertices within ``r`` rings
+  of the touched ones (:mod:`posegraph.incremental.region`), the rest held, until the region's Newton
+  decrement is below ``tolerance · cost / 100``. Then the outermost ring is read: if every vertex of it
+  moved by a whitened ``Δᵀ H_vv Δ`` of at most ``tolerance · cost · wildfire``, the disturbance died
+  out inside the region and the update ends; else ``r`` doubles and the solve continues on the larger
+  region. A region that reaches more than ``full_fraction`` of the free vertices is solved by the batch
+  solver on the whole graph (:func:`posegraph.solve.optimize`, warm).
+* **Stated tolerance.** Default ``tolerance = 1e-8``: after each update the cost exceeds the optimum of
+  the graph so far by at most about ``tolerance`` relative (measured at most 1e-6 in
+  ``benchmarks/bench_incremental.py``; the region test is a heuristic, not a bound). ``verify=True``
+  checks every update that did any work with a warm batch solve of the whole graph (its own test, the
+  Newton decrement, stops it at once when the estimate is already optimal): exact, O(graph) per update.
+  Larger ``tolerance`` (1e-4) is the speed setting.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from posegraph.errors import GraphError
+from posegraph.incremental.components import Components
+from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
+from posegraph.incremental.store import GraphStore, Rows, check_information, check_poses
+from posegraph.lie.group import SE3
+from posegraph.model.graph import PoseGraph
+from posegraph.solve.params import SolverParams
+
+__all__ = ["IncrementalOptimizer", "UpdateInfo"]
+
+
+@dataclass(frozen=True)
+class UpdateInfo:
+    """What one :meth:`IncrementalOptimizer.update` did."""
+
+    kind: str
+    """``"none"`` (nothing added), ``"exact"`` (new poses by composition only), ``"region"``, ``"full"``."""
+    seconds: float
+    vertices: int
+    """Free vertices Gauss-Newton ran on (0 for ``none``/``exact``)."""
+    iterations: int
+    cost: float
+    """The cost after the update (½ Σ eᵀΩe, or ½ Σ ρ with a loss; priors included)."""
+
+
+class _Batch:
+    """What was added since the last update, checked, not yet in the graph."""
+
+    def __init__(self, k: int, d: int):
+        self.ids: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []
+        self.fixed: list[np.ndarray] = []
+        self.known: set[int] = set()
+        self.edges: list[tuple] = []
+        self.pose_priors: list[tuple] = []
+        self.position_priors: list[tuple] = []
+        self.removals: list[np.ndarray] = []
+
+    def empty(self) -> bool:
+        return not (self.ids or self.edges or self.pose_priors or self.position_priors or self.removals)
+
+
+def _ids(values, what: str) -> np.ndarray:
+    array = np.asarray(values)
+    if array.ndim != 1 or (array.size and not np.issubdtype(array.dtype, np.integer)):
+        raise GraphError(f"{what}: ids must be a 1-D array of integers")
+    return array.astype(np.int64)
+
+
+class IncrementalOptimizer:
+    """A pose graph that grows in batches, kept at its optimum after each :meth:`update`.
+
+    ``group``: :data:`posegraph.lie.group.SE3` (default), ``SE2``, ``SIM3``. ``tolerance``: the relative
+    cost excess aimed at (module docstring). ``params``: :class:`posegraph.solve.SolverParams` of the
+    solves handed to the batch solver (large regions, ``optimize``, ``verify``): its ``loss`` (a robust
+    loss, applied in every solve, the small regions' too), ``linear_solver``, ``ordering``, ``method``.
+    """
+
+    def __init__(self, group=SE3, *, tolerance: float = 1e-8, params: SolverParams | None = None, verify: bool = False,
+                 wildfire: float = 1e-2, initial_radius: int = 8, full_fraction: float = 0.5):
+        if not tolerance > 0:
+            raise ValueError(f"tolerance must be positive, got {tolerance}")
+        self.group, self.tolerance, self.verify = group, float(tolerance), bool(verify)
+        self.params = SolverParams() if params is None else params
+        self.wildfire, self.initial_radius, self.full_fraction = wildfire, initial_radius, full_fraction
+        self._store = GraphStore(group)
+        self._components = Components()
+        self._terms = Rows(())  # per edge: s = eᵀΩe, or ρ(s) with a loss
+        self._batch = _Batch(group.matrix_size, group.dim)
+        self.last_update: UpdateInfo | None = None
+
+    # ------------------------------------------------------------------ reading
+
+    @property
+    def num_vertices(self) -> int:
+        return self._store.num_vertices
+
+    @property
+    def num_edges(self) -> int:
+        return self._store.num_edges
+
+    @property
+    def ids(self) -> np.ndarray:
+        return self._store.ids.view.copy()
+
+    @property
+    def poses(self) -> np.ndarray:
+        """``(n, k, k)`` the current estimate, in the order the vertices were added (a copy)."""
+        return self._store.poses.view.copy()
+
+    @property
+    def edge_keys(self) -> np.ndarray:
+        """``(m,)`` the key of each edge in the graph (what :meth:`add_edges` returned), edge order."""
+        return self._store.edge_keys.view.copy()
+
+    def pose(self, vertex_id: int) -> np.ndarray:
+        return self._store.poses.view[self._store.indices_of(_ids([vertex_id], "pose"), "pose")[0]].copy()
+
+    def cost(self) -> float:
+        """The cost at the current estimate (from per-edge terms kept up to date, priors evaluated)."""
+        total = 0.5 * float(np.sum(self._terms.view))
+        if self._store.num_priors:
+            total += self._prior_cost()
+        return total
+
+    def _prior_cost(self) -> float:
+        from posegraph.solve.unary import prior_errors, prior_squared_norms
+
+        store = self._store
+        graph = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=np.zeros(0, np.int64),
+                          edge_to=np.zeros(0, np.int64), measurements=store.measurements.view[:0],
+                          information=store.information.view[:0], fixed=store.fixed.view, group=self.group,
+                          priors=store.priors())
+        s = prior_squared_norms(prior_errors(store.poses.view, graph), graph.priors)
+        loss = self.params.loss
+        return 0.5 * float(np.sum(s if loss is None else loss.rho(s)))
+
+    def graph(self) -> PoseGraph:
+        """The graph so far as a :class:`PoseGraph` at the current estimate (write it with ``write_g2o``)."""
+        s = self._store
+        return PoseGraph(
+            ids=s.ids.view.copy(), poses=s.poses.view.copy(), edge_from=s.edge_from.view.copy(),
+            edge_to=s.edge_to.view.copy(), measurements=s.measurements.view.copy(),
+            information=s.information.view.copy(), fixed=s.fixed.view.copy(), group=self.group, priors=s.priors(),
+        )  # fmt: skip
+
+    def held(self) -> np.ndarray:
+        """``(n,)`` bool: FIX vertices and each component's anchor (held at their estimate)."""
+        return self._components.held_mask()
+
+    # ------------------------------------------------------------------ adding (checked, staged)
+
+    def add_vertices(self, ids, poses, fixed=None) -> None:
+        """Stage new vertices: ids ``(a,)``, initial poses ``(a, k, k)`` (used for a vertex no edge
+        places: the first of a new component), ``fixed`` ``(a,)`` bool (FIX: held at that pose)."""
+        ids = _ids(ids, "vertices")
+        poses = np.asarray(poses, dtype=np.float64).reshape((-1,) + (self.group.matrix_size,) * 2)
+        fixed = np.zeros(ids.shape[0], bool) if fixed is None else np.asarray(fixed, dtype=bool).reshape(-1)
+        if poses.shape[0] != ids.shape[0] or fixed.shape[0] != ids.shape[0]:
+            raise GraphError(f"vertices: {ids.shape[0]} ids, {poses.shape[0]} poses, {fixed.shape[0]} fixed flags")
+        check_poses(poses, self.group, "vertex")
+        unique, counts = np.unique(ids, return_counts=True)
+        if unique.shape[0] != ids.shape[0]:
+            raise GraphError(f"vertex id {int(unique[counts > 1][0])} is given twice in the batch")
+        index, known = self._store.index, self._batch.known
+        for vertex in ids.tolist():
+            if vertex in index or vertex in known:
+                raise GraphError(f"vertex id {vertex} is already in the graph")
+        self._batch.ids.append(ids)
+        self._batch.poses.append(poses.copy())
+        self._batch.fixed.append(fixed.copy())
+        known.update(ids.tolist())
+
+    def _check_known(self, ids: np.ndarray, what: str) -> None:
+        index, known = self._store.index, self._batch.known
+        for position, vertex in enumerate(ids.tolist()):
+            if vertex not in index and vertex not in known:
+                raise GraphError(f"{what} #{position}: vertex id {vertex} is not in the graph")
+
+    def add_edges(self, from_ids, to_ids, measurements, information) -> np.ndarray:
+        """Stage edges ``from_ids[e] → to_ids[e]`` measuring ``Z ≈ X_i⁻¹ X_j`` ``(b, k, k)`` with
+        information ``(b, d, d)`` (tangent order); returns their keys (for :meth:`remove_edges`)."""
+        i, j = _ids(from_ids, "edges"), _ids(to_ids, "edges")
+        k, d = self.group.matrix_size, self.group.dim
+        z = np.asarray(measurements, dtype=np.float64).reshape((-1, k, k))
+        w = np.asarray(information, dtype=np.float64)
+        w = w.reshape((-1, d, d)) if w.size == i.shape[0] * d * d else w
+        if not (i.shape == j.shape and z.shape[0] == i.shape[0] and w.ndim == 3 and w.shape[0] == i.shape[0]):
+            raise GraphError(f"edges: {i.shape[0]} from-ids, {j.shape[0]} to-ids, {z.shape[0]} measurements, "
+                             f"{w.shape[0] if w.ndim else 0} information matrices")
+        self._check_known(i, "edge")
+        self._check_known(j, "edge")
+        loops = np.flatnonzero(i == j)
+        if loops.size:
+            raise GraphError(f"edge #{int(loops[0])}: joins vertex {int(i[loops[0]])} to itself")
+        check_poses(z, self.group, "edge measurement")
+        check_information(w, "edge", d)
+        start = self._store.next_key + sum(len(e[0]) for e in self._batch.edges)
+        self._batch.edges.append((i, j, z.copy(), w.copy()))
+        return np.arange(start, start + i.shape[0], dtype=np.int64)
+
+    def add_pose_priors(self, ids, measurements, information) -> None:
+        """Stage pose priors ``Z ≈ X`` ``(a, k, k)`` with information ``(a, d, d)``."""
+        ids = _ids(ids, "pose priors")
+        k, d = self.group.matrix_size, self.group.dim
+        z = np.asarray(measurements, dtype=np.float64).reshape((-1, k, k))
+        w = np.asarray(information, dtype=np.float64).reshape((-1, d, d))
+        if not (z.shape[0] == w.shape[0] == ids.shape[0]):
+            raise GraphError("pose priors: ids, measurements and information differ in count")
+        self._check_known(ids, "pose prior")
+        check_poses(z, self.group, "pose prior")
+        check_information(w, "pose prior", d)
+        self._batch.pose_priors.append((ids, z.copy(), w.copy()))
+
+    def add_position_priors(self, ids, positions, information) -> None:
+        """Stage position priors ``z ≈ t(X)`` ``(b, r)`` with information ``(b, r, r)``."""
+        ids = _ids(ids, "position priors")
+        r = self.group.space_dim
+        z = np.asarray(positions, dtype=np.float64).reshape((-1, r))
+        w = np.asarray(information, dtype=np.float64).reshape((-1, r, r))
+        if not (z.shape[0] == w.shape[0] == ids.shape[0]) or not np.isfinite(z).all():
+            raise GraphError("position priors: ids, positions and information differ in count, or a position is not finite")
+        self._check_known(ids, "position prior")
+        check_information(w, "position prior", r)
+        self._batch.position_priors.append((ids, z.copy(), w.copy()))
+
+    def remove_edges(self, keys) -> None:
+        """Stage the removal of edges by key (e.g. a loop closure found wrong); applied at :meth:`update`."""
+        keys = _ids(keys, "edges to remove")
+        self._store.edge_positions(np.concatenate(self._batch.removals + [keys]))  # checks, unchanged on error
+        self._batch.removals.append(keys)
+
+    def discard(self) -> None:
+        """Drop what was staged since the last update."""
+        self._batch = _Batch(self.group.matrix_size, self.group.dim)
+
+    # ------------------------------------------------------------------ updating
+
+    def update(self) -> UpdateInfo:
+        """Put the staged batch into the graph and bring the estimate to the new optimum."""
+        from posegraph.incremental.commit import commit_batch
+
+        start = time.perf_counter()
+        batch, self._batch = self._batch, _Batch(self.group.matrix_size, self.group.dim)
+        if batch.empty():
+            info = UpdateInfo("none", 0.0, 0, 0, self.cost())
+        else:
+            touched = commit_batch(self, batch)
+            kind, vertices, iterations = self._solve(touched)
+            info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
+        self.last_update = info
+        return info
+
+    def _solve(self, touched: list[int]) -> tuple[str, int, int]:
+        held = self._components.held
+        seeds = [v for v in touched if not held[v]]
+        if not seeds:
+            return "exact", 0, 0
+        kind, vertices, iterations = self._solve_region(seeds)
+        if self.verify and kind != "full":
+            self.optimize(method="gn")
+            kind = "full"
+        return kind, vertices, iterations
+
+    def _solve_region(self, seeds: list[int]) -> tuple[str, int, int]:
+        store, held = self._store, self._components.held
+        tol = self.tolerance * self.cost() + 1e-14
+        region = Region(store.adjacency, store.edge_from.view, store.edge_to.view, held, seeds)
+        radius, iterations = self.initial_radius, 0
+        while True:
+            region.grow(radius)
+            if len(region.vertices) > 400:
+                free = store.num_vertices - sum(held)
+                if len(region.vertices) > self.full_fraction * free and free > 1000:
+                    self.optimize()
+                    return "full", free, iterations + 1
+            vertices, edges = np.array(region.vertices, dtype=np.int64), region.edges()
+            outcome = None
+            if vertices.shape[0] * self.group.dim <= SPARSE_LIMIT:
+                outcome = solve_region(store, vertices, edges, store.fixed.view, self.params.loss, 0.01 * tol)
+            if outcome is None or not outcome.ok:
+                outcome = solve_subgraph(store, vertices, edges, store.fixed.view, self.params)
+            iterations += outcome.iterations
+            self._refresh_terms(edges)
+            ring = outcome.moved[vertices.shape[0] - len(region.frontier):]
+            if region.exhausted or ring.max(initial=0.0) <= self.wildfire * tol:
+                return "region", vertices.shape[0], iterations
+            radius *= 2
+
+    def _refresh_terms(self, edges: np.ndarray) -> None:
+        """Per-edge cost terms of ``edges`` at the current estimate."""
+        from posegraph.solve.residuals import edge_errors, squared_norms
+
+        store = self._store
+        sub = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=store.edge_from.view[edges],
+                        edge_to=store.edge_to.view[edges], measurements=store.measurements.view[edges],
+                        information=store.information.view[edges], fixed=store.fixed.view, group=self.group)
+        s = squared_norms(edge_errors(store.poses.view, sub)[1], sub.information)
+        loss = self.params.loss
+        self._terms.view[edges] = s if loss is None else loss.rho(s)
+
+    def optimize(self, **changes):
+        """A batch solve of the whole graph from the current estimate (:func:`posegraph.solve.optimize`
+        with ``params``, ``changes`` replacing fields); the estimate becomes its result, returned."""
+        from posegraph.solve import optimize
+
+        graph = replace(self.graph(), fixed=self.held())
+        result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params)
+        self._store.poses.view[:] = result.poses
+        self._refresh_terms(np.arange(self._store.num_edges))
+        return result
+
+    # ------------------------------------------------------------------ covariances
+
+    def marginal_covariance(self, vertex_id: int) -> np.ndarray:
+        """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
+        convention; zero for a held vertex)."""
+        from posegraph.analysis.covariance import marginal_covariances
+
+        index = self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")
+        graph = replace(self.graph(), fixed=self.held())
+        return marginal_covariances(graph, graph.poses, index)[0]
+
+    def joint_covariance(self, vertex_ids) -> np.ndarray:
+        """``(k·d, k·d)`` joint covariance of a few poses at the current estimate."""
+        from posegraph.analysis.covariance import joint_covariance
+
+        index = self._store.indices_of(_ids(vertex_ids, "covariance"), "covariance")
+        graph = replace(self.graph(), fixed=self.held())
+        return joint_covariance(graph, graph.poses, index)
