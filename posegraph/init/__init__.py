@@ -15,6 +15,8 @@ choices and records measured costs and timings against gtsam's ``InitializePose3
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from posegraph.model.graph import PoseGraph
@@ -46,11 +48,18 @@ def file_initialization(graph: PoseGraph) -> np.ndarray:
 def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarray:
     """Initial poses ``(n, k, k)`` (``k = graph.group.matrix_size``) for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
 
+    A landmark graph's poses start from its pose edges alone (the gauge of each of their components
+    held as in a pose graph); :func:`posegraph.init.landmarks.initialize_landmarks` places the landmarks.
+
     ``options`` go to the method's function: ``linear_solver=`` for ``"chordal"``, ``tree=`` for
     ``"odometry"``.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if graph.landmarks is not None and method != "file":
+        # the poses from the pose edges alone, each component of them anchored as a pose graph's;
+        # the landmarks then follow from the poses (posegraph.init.landmarks)
+        return initialize(replace(graph, landmarks=None), method, **options)
     if graph.num_vertices == 0:
         k = graph.group.matrix_size
         return np.zeros((0, k, k))

@@ -153,3 +153,13 @@ def test_cost_counts_the_landmark_terms_as_the_solver_starts():
     assert cost(graph) > pose_terms
     started = optimize(graph, truth, SolverParams(max_iterations=1))
     assert cost(graph, truth) == pytest.approx(started.initial_cost, rel=1e-14)  # landmarks started from the poses
+
+
+@pytest.mark.parametrize("method", ["chordal", "odometry"])
+def test_point_priors_alone_tie_the_gauge_and_the_start_still_works(method):
+    graph, truth, points = landmark_graph(SE2, 10, 6, ("position", "prior"), noise=0.02, seed=12)
+    assert held_vertices(graph).sum() == 0  # the point priors hold the gauge: no pose is held
+    result = optimize(graph, method)
+    from_truth = optimize(graph, truth, initial_points=points)
+    assert result.converged and result.final_cost == pytest.approx(from_truth.final_cost, rel=1e-9)
+    np.testing.assert_allclose(result.points, from_truth.points, atol=1e-6)
