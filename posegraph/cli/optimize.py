@@ -13,7 +13,7 @@ from posegraph.cli.common import (
     interrupted_status, warn,
 )
 from posegraph.cli.robust import (
-    check_robust_options, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
+    check_robust_options, final_landmark_weights, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
     robust_summary, run_gnc, warn_about_known_inliers,
 )
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
@@ -114,16 +114,17 @@ def run(args) -> int:
     held = held.with_points(result.points)  # the landmarks where the solve left them: χ², covariances, output
     weights = final_weights(held, args, result, robust)
     prior_weights = final_prior_weights(held, args, result, robust)
-    inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights)  # robust: χ², covariances of those kept
+    landmark_weights = final_landmark_weights(held, args, result, robust)
+    inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights, landmark_weights=landmark_weights)  # robust: χ², covariances of those kept
     # the solver's last residuals are those of `inliers` unless the robust path dropped edges
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
     _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known,
-                   prior_weights, certified)
+                   prior_weights, certified, landmark_weights)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2, certified)
-        robust_summary(graph, weights, args, prior_weights)
+        robust_summary(graph, weights, args, prior_weights, landmark_weights)
     _warn_if_chi2_high(chi2)
     warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
@@ -218,7 +219,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 def _write_outputs(
     args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
-    prior_weights=None, certified=None,
+    prior_weights=None, certified=None, landmark_weights=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -228,7 +229,8 @@ def _write_outputs(
     printed = []
     with StagedOutputs() as outputs:
         with Ticker(status, f"writing {args.output}"), Timer() as t_write:
-            written = output_graph(graph.with_points(result.points), weights, drop=args.drop_outliers, prior_weights=prior_weights)
+            written = output_graph(graph.with_points(result.points), weights, drop=args.drop_outliers,
+                                   prior_weights=prior_weights, landmark_weights=landmark_weights)
             if args.output == STDIO:
                 printed.append(format_g2o(written, result.poses))
             else:
@@ -244,7 +246,7 @@ def _write_outputs(
             )
             if certified is not None:
                 report["certify"] = certified
-            report = json_text(robust_report(report, args, weights, known, prior_weights))
+            report = json_text(robust_report(report, args, weights, known, prior_weights, graph, landmark_weights))
             if args.report == STDIO:
                 printed.append(report)
             else:

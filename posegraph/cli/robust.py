@@ -116,7 +116,21 @@ def final_prior_weights(graph, args, result, robust):
     return np.asarray(robust_loss(args).weight(measurement_residuals(graph, result.poses)[graph.num_edges:]))
 
 
-def robust_summary(graph, weights, args, prior_weights=None) -> None:
+def final_landmark_weights(graph, args, result, robust):
+    """``(q,)`` final weights of the landmark measurements (GNC's, or ρ'(s) at the result), None without
+    ``--robust`` or landmarks."""
+    import numpy as np  # here, not at import: --help and the parser must not load numpy
+
+    if graph.landmarks is None or not graph.landmarks.num_measurements or args.robust == "none":
+        return None
+    if robust is not None:
+        return robust.landmark_weights
+    from posegraph.solve.landmark_terms import landmark_errors
+
+    return np.asarray(robust_loss(args).weight(landmark_errors(graph, result.poses, result.points).squared))
+
+
+def robust_summary(graph, weights, args, prior_weights=None, landmark_weights=None) -> None:
     """Print the outlier line of the summary, if robust: after the others, on the same stream
     (stderr when standard output carries the result or the report)."""
     import numpy as np  # here, not at import: --help and the parser must not load numpy
@@ -126,10 +140,13 @@ def robust_summary(graph, weights, args, prior_weights=None) -> None:
         line = outlier_line(graph, weights)
         if prior_weights is not None:
             line += f"; {int(np.count_nonzero(prior_weights < OUTLIER_WEIGHT))} of {len(prior_weights)} priors"
+        if landmark_weights is not None:
+            line += (f"; {int(np.count_nonzero(landmark_weights < OUTLIER_WEIGHT))} of {len(landmark_weights)} "
+                     "landmark measurements")
         print(line, file=out, flush=True)
 
 
-def robust_report(report: dict, args, weights, known=None, prior_weights=None) -> dict:
+def robust_report(report: dict, args, weights, known=None, prior_weights=None, graph=None, landmark_weights=None) -> dict:
     """``report`` with ``robust`` (the ``--robust`` name) and ``outlier_edges`` (0-based edge-line
     indices with final weight below 0.5) when robust, ``outlier_priors`` (the same of the priors) with
     priors, and ``known_inliers`` (GNC's, from
@@ -143,7 +160,19 @@ def robust_report(report: dict, args, weights, known=None, prior_weights=None) -
         report["outlier_priors"] = [int(k) for k in np.flatnonzero(prior_weights < OUTLIER_WEIGHT)]
     if known is not None:
         report["known_inliers"] = dict(known, mode=args.known_inliers, strict=bool(args.strict_known_inliers))
+    if landmark_weights is not None:
+        report["outlier_landmark_measurements"] = _landmark_outlier_rows(graph, landmark_weights)
     return report
+
+
+def _landmark_outlier_rows(graph, weights) -> list:
+    """Per landmark measurement of weight below 0.5: ``{"tag", "line", "pose_id", "landmark_id"}`` (pose_id
+    None for a point prior)."""
+    from posegraph.robust.pipeline import landmark_outliers
+
+    families = graph.landmarks.observations
+    return [{"tag": families[o.family].tag, "line": o.line, "pose_id": None if o.pose < 0 else int(graph.ids[o.pose]),
+             "landmark_id": int(graph.landmarks.ids[o.landmark])} for o in landmark_outliers(graph, weights)]
 
 
 def known_inlier_facts(graph, robust) -> dict | None:
@@ -201,17 +230,19 @@ def outlier_line(graph, weights) -> str:
     return line + (f", and {rejected_odometry} odometry edges" if rejected_odometry else "")
 
 
-def output_graph(graph, weights, *, drop: bool, prior_weights=None):
-    """``graph`` without the edges (and priors, ``prior_weights`` ``(u,)``) judged outliers when ``drop``
-    and robust, else ``graph``."""
+def output_graph(graph, weights, *, drop: bool, prior_weights=None, landmark_weights=None):
+    """``graph`` without the edges (and priors, ``prior_weights`` ``(u,)``, and landmark measurements,
+    ``landmark_weights`` ``(q,)``) judged outliers when ``drop`` and robust, else ``graph``."""
     import numpy as np  # here, not at import: --help and the parser must not load numpy
 
     if not drop or weights is None:
         return graph
     from posegraph.robust.active import edge_subgraph
-    from posegraph.robust.measurements import weighted_priors
+    from posegraph.robust.measurements import landmark_subset, weighted_priors
 
     kept = edge_subgraph(graph, np.flatnonzero(weights >= OUTLIER_WEIGHT))
+    if landmark_weights is not None and np.any(landmark_weights < OUTLIER_WEIGHT):
+        kept = landmark_subset(kept, landmark_weights >= OUTLIER_WEIGHT)
     if prior_weights is None or np.all(prior_weights >= OUTLIER_WEIGHT):
         return kept
     return weighted_priors(kept, (prior_weights >= OUTLIER_WEIGHT).astype(np.float64))

@@ -103,3 +103,23 @@ def test_a_3d_landmark_file_with_offsets_is_solved_to_its_truth(tmp_path):
     solved = read_g2o(out)
     assert "EDGE_SE3_TRACKXYZ" in out.read_text() and "PARAMS_SE3OFFSET" in out.read_text()
     np.testing.assert_allclose(solved.landmarks.positions, points, atol=1e-6)
+
+
+def test_gnc_names_the_wrong_associations_and_drops_them(tmp_path):
+    from tests.robust.test_landmark_gnc import wrong_associations
+
+    graph, _, points = landmark_graph(SE2, 30, 20, ("position",), noise=0.01, seed=0, per_landmark=4)
+    bad, wrong = wrong_associations(graph, 0.15, seed=1)
+    path, out, report = tmp_path / "bad.g2o", tmp_path / "out.g2o", tmp_path / "report.json"
+    write_g2o(path, bad)
+    run = run_cli("optimize", path, "-o", out, "--report", report, "--robust", "gnc", "--drop-outliers")
+    assert run.returncode == 0, run.stderr
+    facts = json.loads(report.read_text())
+    read = read_g2o(path)
+    lines = read.landmarks.observations[0].lines
+    flagged = {row["line"] for row in facts["outlier_landmark_measurements"]}
+    assert set(lines[wrong].tolist()) <= flagged and len(flagged - set(lines[wrong].tolist())) <= 2
+    assert f"of {read.landmarks.num_measurements} landmark measurements" in run.stdout
+    kept = read_g2o(out)
+    assert kept.landmarks.num_measurements == read.landmarks.num_measurements - len(flagged)
+    np.testing.assert_allclose(kept.landmarks.positions, points, atol=0.05)
