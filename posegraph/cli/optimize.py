@@ -53,7 +53,8 @@ def add_arguments(p) -> None:
                    help="write each pose's marginal covariance at the result (numpy .npz: 'ids' (n,), 'covariances' "
                         "(n, d, d), d = 6 for SE(3) in gtsam's tangent order [rotation; translation] and body frame, "
                         "3 for SE(2) [x, y, θ]); FIX vertices and each component's anchor are held, so theirs are "
-                        "zero and the others are relative to them; written with OUT, or neither")
+                        "zero and the others are relative to them; a landmark graph's file also holds 'landmark_ids' (L,) "
+                        "and 'landmark_covariances' (L, s, s) of the points (world frame); written with OUT, or neither")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
 
 
@@ -198,22 +199,26 @@ def _with_fixed(graph, ids: list, path: str):
 
 
 def _covariances(args, status: Status, held, result, seconds: dict):
-    """``(n, d, d)`` marginal covariances at the result, in the solve's gauge (``held``: with ``--fix``).
+    """``(n, d, d)`` marginal covariances at the result, in the solve's gauge (``held``: with ``--fix``),
+    and with landmarks ``{"poses": …, "landmarks": (L, s, s)}`` (:func:`posegraph.analysis.covariance.landmark_covariances`).
 
     An H that is not positive definite there stops the command before anything is written.
     """
     from posegraph.linalg.cholmod import NotPositiveDefiniteError
-    from posegraph.analysis.covariance import marginal_covariances
+    from posegraph.analysis.covariance import landmark_covariances, marginal_covariances
     from posegraph.errors import OutputError
 
     with Ticker(status, "computing covariances"), Timer() as t:
         try:
             covariances = marginal_covariances(held, result.poses)
+            if held.landmarks is not None:
+                covariances = {"poses": covariances, "landmarks": landmark_covariances(held, result.poses)}
         except NotPositiveDefiniteError as exc:
             raise OutputError(f"cannot compute the covariances: the Gauss-Newton matrix at the result is not "
                               f"positive definite ({exc}); nothing written", path=args.covariances) from None
     seconds["covariances"] = t.seconds
-    status(f"covariances: {covariances.shape[0]} poses ({t.seconds:.3f} s)")
+    status(f"covariances: {held.num_vertices} poses"
+           + (f", {held.landmarks.count} landmarks" if held.landmarks is not None else "") + f" ({t.seconds:.3f} s)")
     return covariances
 
 
@@ -255,7 +260,11 @@ def _write_outputs(
             import numpy as np
 
             with outputs.writing(args.covariances) as tmp, open(tmp, "wb") as f:  # a file object: savez adds no ".npz"
-                np.savez(f, ids=graph.ids, covariances=covariances)
+                if isinstance(covariances, dict):  # a landmark graph: the landmarks' too
+                    np.savez(f, ids=graph.ids, covariances=covariances["poses"], landmark_ids=graph.landmarks.ids,
+                             landmark_covariances=covariances["landmarks"])
+                else:
+                    np.savez(f, ids=graph.ids, covariances=covariances)
         outputs.commit()
     for text in printed:
         sys.stdout.write(text)

@@ -123,3 +123,19 @@ def test_gnc_names_the_wrong_associations_and_drops_them(tmp_path):
     kept = read_g2o(out)
     assert kept.landmarks.num_measurements == read.landmarks.num_measurements - len(flagged)
     np.testing.assert_allclose(kept.landmarks.positions, points, atol=0.05)
+
+
+def test_covariances_of_a_landmark_graph_hold_the_landmarks_too(landmark_file, tmp_path):
+    from posegraph.analysis.covariance import landmark_covariances, marginal_covariances
+
+    out, cov = tmp_path / "out.g2o", tmp_path / "cov.npz"
+    run = run_cli("optimize", landmark_file, "-o", out, "--covariances", cov, "-q")
+    assert run.returncode == 0, run.stderr
+    saved = np.load(cov)
+    solved = read_g2o(out)
+    expected = optimize(read_g2o(landmark_file))
+    graph = read_g2o(landmark_file).with_points(expected.points)
+    np.testing.assert_array_equal(saved["landmark_ids"], solved.landmarks.ids)
+    np.testing.assert_allclose(saved["landmark_covariances"], landmark_covariances(graph, expected.poses), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(saved["covariances"], marginal_covariances(graph, expected.poses), rtol=1e-9, atol=1e-15)
+    assert saved["landmark_covariances"].shape == (12, 2, 2) and np.all(np.linalg.eigvalsh(saved["landmark_covariances"]) > 0)
