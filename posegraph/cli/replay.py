@@ -96,6 +96,11 @@ def run(args) -> int:
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    if graph.landmarks is not None:
+        from posegraph.errors import GraphError
+
+        raise GraphError(f"the graph has {graph.landmarks.count} landmarks: the incremental optimiser takes pose graphs "
+                         "only; posegraph optimize solves landmark graphs", display_name(args.input))
     opt, params = _optimizer(args, graph)
     with Timer() as t:
         result = replay(graph, args.batch_size, optimizer=opt, check_every=args.check_every,

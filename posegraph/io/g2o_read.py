@@ -167,18 +167,7 @@ def _parse(
         vertices.ids, vertices.numbers, edges.ids, edges.numbers, fix.ids, fix.numbers, path,
         _tag_names(table, "vertex", "line"),
     )  # fmt: skip
-    graph = PoseGraph(
-        ids=vertices.ids.copy(),
-        poses=_matrices(vertices.rotations, vertices.translations),
-        edge_from=edge_index[:, 0].copy(),
-        edge_to=edge_index[:, 1].copy(),
-        measurements=_matrices(edges.rotations, edges.translations),
-        information=information,
-        fixed=fixed,
-        source=source,
-        edge_lines=edges.numbers.copy(),
-        group=_GROUP[space_dim],
-    )
+    graph = _pose_graph(vertices, edges, information, (edge_index, fixed), source, space_dim)
     graph = _with_edge_source(graph, edges, information, lines[PRIMARY_EDGE_TAG[space_dim]], PRIMARY_EDGE_TAG[space_dim])
     if parsed is not None:
         graph, landmark_notes = _with_landmarks(graph, parsed, groups, landmark_fix, _tag_names(table, "vertex", "line"), path)
@@ -246,6 +235,23 @@ def _tag_names(table: dict[str, Record], kind: str, noun: str) -> str:
     """``"VERTEX_SE3:QUAT lines (nor VERTEX3)"`` or ``"VERTEX_SE2 lines"``: the tags of one kind, for messages."""
     tags = [tag for tag, record in table.items() if record.kind == kind]
     return f"{tags[0]} {noun}" + (f" (nor {', '.join(tags[1:])})" if len(tags) > 1 else "")
+
+
+def _pose_graph(vertices, edges, information: np.ndarray, topology_: tuple, source: str | None, space_dim: int) -> PoseGraph:
+    """The :class:`PoseGraph` of the merged vertices and edges; ``topology_``: ``(edge_index (m, 2), fixed (n,))``."""
+    edge_index, fixed = topology_
+    return PoseGraph(
+        ids=vertices.ids.copy(),
+        poses=_matrices(vertices.rotations, vertices.translations),
+        edge_from=edge_index[:, 0].copy(),
+        edge_to=edge_index[:, 1].copy(),
+        measurements=_matrices(edges.rotations, edges.translations),
+        information=information,
+        fixed=fixed,
+        source=source,
+        edge_lines=edges.numbers.copy(),
+        group=_GROUP[space_dim],
+    )
 
 
 def _parse_lines(

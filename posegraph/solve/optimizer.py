@@ -124,7 +124,8 @@ def optimize(
     Parameters
     ----------
     graph : PoseGraph
-        Its ``group`` gives the pose matrices ``(k, k)`` and the tangent dimension ``d``.
+        Its ``group`` gives the pose matrices ``(k, k)`` and the tangent dimension ``d``; its
+        ``landmarks``, if any, are solved with the poses (``docs/landmarks.md``).
     initial : None, str or (n, k, k) array
         Starting poses: an array, or the name of an initialiser — ``"file"`` (the graph's own
         poses), ``"chordal"`` or ``"odometry"`` (:func:`posegraph.init.initialize`). ``None`` means
@@ -140,18 +141,13 @@ def optimize(
         in the analysed system, decoupled: :class:`~posegraph.solve.sparsity.PinnedVariables`).
         With the edges of weight 0 that leave them unconstrained, this solves a subgraph's problem
         over the analysis of a larger edge set.
-    initial_points : (L, s) array, optional
-        Starting landmark positions of a graph with landmarks; None: the file's with
-        ``initial="file"``, else each landmark from its measurements given the starting poses
-        (:func:`posegraph.init.landmarks.initialize_landmarks`).
-    hold_points : (L,) bool array, optional
-        Landmarks held at their start as ``hold`` holds vertices (e.g. all their measurements at weight 0).
+    initial_points, hold_points : (L, s) array, (L,) bool array, optional
+        Starting landmark positions (None: the file's with ``initial="file"``, else each from its
+        measurements given the starting poses, :func:`posegraph.init.landmarks.initialize_landmarks`),
+        and landmarks held at their start as ``hold`` holds vertices.
 
-    Returns
-    -------
-    OptimizeResult
-        Final poses (held vertices unchanged) and landmark positions, costs, per-iteration records,
-        termination reason and the linear solver that ran.
+    Returns an :class:`OptimizeResult`: final poses (held vertices unchanged) and landmark
+    positions, costs, per-iteration records, termination reason and the linear solver that ran.
     """
     start = time.perf_counter()
     params = SolverParams() if params is None else params

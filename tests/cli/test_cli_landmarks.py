@@ -139,3 +139,8 @@ def test_covariances_of_a_landmark_graph_hold_the_landmarks_too(landmark_file, t
     np.testing.assert_allclose(saved["landmark_covariances"], landmark_covariances(graph, expected.poses), rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(saved["covariances"], marginal_covariances(graph, expected.poses), rtol=1e-9, atol=1e-15)
     assert saved["landmark_covariances"].shape == (12, 2, 2) and np.all(np.linalg.eigvalsh(saved["landmark_covariances"]) > 0)
+
+
+def test_replay_refuses_a_landmark_graph_in_one_line(landmark_file):
+    run = run_cli("replay", landmark_file, "-q")
+    assert_one_error_line(run, "12 landmarks", "pose graphs only")
