@@ -190,10 +190,10 @@ def compare(result: dict) -> dict:
 
 def format_line(result: dict) -> str:
     """One line per file for the log."""
-    parts = [f"  {result['file']}:"]
+    parts = []
     for tool, s in result["tools"].items():
         parts.append(f"{tool} {s['wall']:.3f} s χ² {s['chi2']:.10g}" if s["ok"] else f"{tool} — ({str(s.get('error'))[:70]})")
-    return "; ".join(parts)
+    return f"  {result['file']}: " + "; ".join(parts)
 
 
 def _f(value, spec: str = ".10g") -> str:
