@@ -4,6 +4,9 @@ Default datasets: every 3D or 2D ``.g2o`` in ``../shared/datasets``, gtsam's bun
 and ``pose3example.txt``, and the synthetic sets of :data:`benchmarks.harness.SYNTHETIC_SETS`.
 ``--datasets`` replaces them with the given files and folders (every 3D or 2D ``.g2o``/``.txt`` in a folder).
 Writes ``benchmark_results.json`` and ``benchmark_results.md`` into ``--out`` and prints the summary.
+``--landmarks`` adds the landmark files (issue 35): after the pose graphs, posegraph, g2opy and gtsam
+on them (:mod:`benchmarks.bench_landmarks`, the same ``--repeats``, ``--only`` and ``--timeout``), written
+to ``landmark_results.json``/``.md`` in ``--out``; ``--landmarks-only`` runs just those.
 """
 
 from __future__ import annotations
@@ -30,7 +33,20 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--fresh-venv", metavar="DIR", default=None,
                         help="make a new virtual environment in DIR by the README's `pip install .` (plus gtsam) and run both tools from it")
     parser.add_argument("--synthetic-dir", default=None, help="where synthetic sets are generated (default: a temporary folder)")
+    parser.add_argument("--landmarks", action="store_true",
+                        help="also run the landmark files (posegraph, g2opy, gtsam; benchmarks.bench_landmarks)")
+    parser.add_argument("--landmarks-only", action="store_true", help="only the landmark files")
+    parser.add_argument("--landmark-data", default=None, metavar="DIR", help="folder of the landmark files (default /work/data-landmarks)")
     return parser
+
+
+def landmark_argv(args) -> list[str]:
+    """``benchmarks.bench_landmarks``'s command line for ``--landmarks``."""
+    from benchmarks import bench_landmarks
+
+    argv = ["--data", args.landmark_data or str(bench_landmarks.DATA_DIR), "--repeats", str(args.repeats),
+            "--out", args.out, "--timeout", str(args.timeout)]  # fmt: skip
+    return argv + (["--only", *args.only] if args.only else [])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,6 +54,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 1 or args.warmup < 0:
         parser.error("--repeats must be >= 1 and --warmup >= 0")
+    if args.landmarks_only:
+        from benchmarks import bench_landmarks
+
+        return bench_landmarks.main(landmark_argv(args))
     with tempfile.TemporaryDirectory(prefix="posegraph-synthetic-") as tmp:
         try:
             if args.datasets:
@@ -61,6 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(harness.to_markdown(result))
     print(f"wrote {json_path} and {md_path}")
+    if args.landmarks:
+        from benchmarks import bench_landmarks
+
+        return bench_landmarks.main(landmark_argv(args))
     return 0
 
 

@@ -137,3 +137,68 @@ def test_scaling_points_table_and_plot(tmp_path):
     assert table.count("\n| sphere |") == 2 and "nnz(L)" in table
     scaling.plot(points, tmp_path / "scaling.png")
     assert (tmp_path / "scaling.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _landmark_file(tmp_path):
+    """A tiny SE(2) landmark graph (poses + VERTEX_XY + EDGE_SE2_XY) written as g2o."""
+    from datasets.synthetic import landmark_graph
+    from posegraph.io.g2o import write_g2o
+    from posegraph.lie.group import SE2
+
+    graph, _, _ = landmark_graph(SE2, num_poses=10, num_landmarks=6, noise=0.01, seed=3)
+    path = tmp_path / "tiny_landmarks.g2o"
+    write_g2o(path, graph)
+    return path, graph
+
+
+def test_landmark_children_reports_parse_and_tabulate(tmp_path):
+    """g2opy and gtsam children on a tiny landmark file: their JSON parsed, the not-read rule, the table."""
+    from benchmarks import bench_landmarks, g2opy_pipeline, gtsam_landmarks
+    from tests.optional import import_or_skip
+
+    import_or_skip("g2opy", "the g2o side of the landmark benchmark")
+    import_or_skip("gtsam", "the gtsam side of the landmark benchmark")
+    path, graph = _landmark_file(tmp_path)
+    measurements = graph.num_edges + graph.landmarks.num_measurements
+    assert g2opy_pipeline.measurement_lines(str(path)) == measurements
+    g2o_report, gtsam_report = tmp_path / "g2o.json", tmp_path / "gtsam.json"
+    assert g2opy_pipeline.main([str(path), "-o", str(tmp_path / "g2o_out.g2o"), "--report", str(g2o_report)]) == 0
+    assert gtsam_landmarks.main([str(path), "-o", str(tmp_path / "gtsam_out.g2o"), "--report", str(gtsam_report)]) == 0
+    g2o = bench_landmarks.parse_report("g2opy", json.loads(g2o_report.read_text()))
+    gtsam = bench_landmarks.parse_report("gtsam", json.loads(gtsam_report.read_text()))
+    assert g2o["not_read"] is None and g2o["cost"] == pytest.approx(g2o["chi2"] / 2) and 0 <= g2o["chi2"] < 1e3
+    assert g2o["iterations"] >= 1 and (tmp_path / "g2o_out.g2o").is_file()
+    # gtsam's readG2o keeps the VERTEX_XY values but drops the EDGE_SE2_XY measurements: not read, with the counts.
+    assert gtsam["not_read"] == f"gtsam.readG2o built {graph.num_edges} factors of {measurements} measurement lines"
+    posegraph = bench_landmarks.parse_report("posegraph", {
+        "final_cost": 0.5 * g2o["chi2"], "chi2": g2o["chi2"], "iterations": 4, "converged": True, "num_vertices": 10,
+        "num_edges": graph.num_edges, "num_landmarks": 6, "num_landmark_measurements": graph.landmarks.num_measurements,
+        "seconds": {"read": 0.01, "optimise": 0.02, "total": 0.03, "solver": {"factorize": 0.01}}})  # fmt: skip
+    assert posegraph["counts"] == {"poses": 10, "landmarks": 6, "measurements": measurements}
+    assert "solver" not in posegraph["seconds"]
+
+    def summary(parsed, wall):
+        return {**bench_landmarks.median_summary([{**parsed, "ok": parsed["not_read"] is None, "wall": wall}])}
+
+    result = {"file": path.name, "posegraph_g2o_chi2": g2o["chi2"] * (1 + 2e-6), "posegraph_g2o_chi2_note": None,
+              "tools": {"posegraph": summary(posegraph, 0.3), "g2opy": summary(g2o, 1.0), "gtsam": summary(gtsam, 0.5)}}
+    result["comparison"] = bench_landmarks.compare(result)
+    assert not result["comparison"]["chi2_met"] and result["comparison"]["ratio_vs_g2opy"] == pytest.approx(0.3)
+    table = "\n".join(bench_landmarks.file_table(result))
+    assert f"10 poses, 6 landmarks, {measurements} measurements" in table
+    assert f"| gtsam | not read: gtsam.readG2o built {graph.num_edges} factors" in table
+    assert "χ² ≤ g2opy's × (1 + 1e-6), g2o's definition: NO (relative +2.000e-06" in table
+    assert "end-to-end ≤ 0.5 × g2opy's: yes (ratio 0.30)" in table
+
+
+def test_landmark_files_say_why_one_is_skipped(tmp_path):
+    from benchmarks import bench_landmarks
+
+    (tmp_path / "isam_victoriaPark.txt").write_text("ODOMETRY 0 1 1 0 0 1 0 0 1 0 1\n")
+    entries = {e["name"]: e for e in bench_landmarks.landmark_files(tmp_path)}
+    assert entries["isam_victoriaPark.txt"]["path"] == tmp_path / "isam_victoriaPark.txt"
+    assert entries["victoriaPark-full.g2o.gz"]["path"] is None
+    assert entries["victoriaPark-full.g2o.gz"]["reason"].startswith("absent: ")
+    command = bench_landmarks.tool_command("posegraph", tmp_path / "isam_victoriaPark.txt", tmp_path / "o", tmp_path / "r")
+    assert command[-2:] == ["--isam-information", "covariance"]
+    assert "--isam-information" not in bench_landmarks.tool_command("posegraph", tmp_path / "a.g2o.gz", tmp_path / "o", tmp_path / "r")
