@@ -416,7 +416,8 @@ def gradient_values(pattern: HessianPattern, grads: np.ndarray) -> np.ndarray:
     """``(dp,)`` gradient ``g = Σ Jᵀ Ω e`` from per-edge ``(m, 2, d)`` = ``[A_iᵀ Ω e, A_jᵀ Ω e]``."""
     weights = np.ascontiguousarray(grads, dtype=np.float64).ravel()
     d = pattern.dimension
-    return np.bincount(pattern.gradient_positions, weights=weights, minlength=d + 1)[:d]
+    # float64 even with no edge (numpy's bincount of no weights is int64)
+    return np.bincount(pattern.gradient_positions, weights=weights, minlength=d + 1)[:d].astype(np.float64, copy=False)
 
 
 def lower_matvec(pattern: HessianPattern, data: np.ndarray, x: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:

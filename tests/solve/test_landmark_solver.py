@@ -163,3 +163,20 @@ def test_point_priors_alone_tie_the_gauge_and_the_start_still_works(method):
     from_truth = optimize(graph, truth, initial_points=points)
     assert result.converged and result.final_cost == pytest.approx(from_truth.final_cost, rel=1e-9)
     np.testing.assert_allclose(result.points, from_truth.points, atol=1e-6)
+
+
+def test_a_graph_without_pose_edges_solves_its_landmarks():
+    """gtsam's edge_se3_trackxyz_*.g2o: one pose, one landmark, one measurement through an offset."""
+    from posegraph.model.graph import PoseGraph
+    from posegraph.model.landmarks import Landmarks, Observations
+
+    offset = SE3.exp(np.array([[0.1, -0.2, 0.3, 0.5, 0.0, -0.1]]))
+    pose = SE3.exp(np.array([[0.0, 0.0, 0.7, 1.0, -2.0, 0.5]]))
+    z = np.array([[2.0, 1.0, 3.0]])
+    family = Observations("position", np.array([0]), np.array([0]), z, np.eye(3)[None] * 4.0, offsets=offset)
+    graph = PoseGraph(np.array([7]), pose, np.zeros(0, int), np.zeros(0, int), np.zeros((0, 4, 4)), np.zeros((0, 6, 6)),
+                      landmarks=Landmarks(np.array([9]), np.array([[0.0, 0.0, 3.5]]), (family,)))  # fmt: skip
+    result = optimize(graph, "file", initial_points=graph.landmarks.positions)
+    sensor = pose[0] @ offset[0]
+    np.testing.assert_allclose(result.points[0], sensor[:3, :3] @ z[0] + sensor[:3, 3], atol=1e-9)
+    assert result.final_cost < 1e-18
