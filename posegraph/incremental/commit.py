@@ -75,6 +75,7 @@ def commit_batch(opt, batch) -> list[int]:
         keep = np.ones(opt._terms.n, dtype=bool)
         keep[positions] = False
         opt._terms.keep(keep)
+        opt._whole.reset()  # the scatter positions follow the edge order
     if batch.edges:
         touched += _add_edges(opt, batch, new)
     for kind, add in (("pose_priors", store.add_pose_priors), ("position_priors", store.add_position_priors)):
