@@ -8,8 +8,9 @@ what does not change between updates is kept:
   CHOLMOD's symbolic factorisation (AMD) are made for a *capacity* larger than the graph (×1.5), the
   vertices not yet added decoupled (unit diagonal, zero gradient: their step is 0). The pattern holds
   the blocks of every edge so far, the odometry chain ``(v, v+1)`` of the vertices to come, and, for
-  each loop closure of the update that forced the analysis, the blocks a re-traversal would add next
-  (``(lo ± s, hi + s)``, ``s ≤ PREDICT``). A new edge whose block is in the pattern costs only its
+  each loop closure ``(lo, hi)`` added since the last analysis, the cone of blocks a re-traversal
+  would add next (``(lo + t, hi + s)``, ``1 ≤ s ≤ PREDICT``, ``−s−2 ≤ t ≤ 3s+2``: the older end may
+  advance at another pace, or back). A new edge whose block is in the pattern costs only its
   scatter positions; the analysis is redone when the capacity is exceeded, a block is missing or the
   held set (FIX, anchors) changed — amortised over many updates.
 * **The factor (chord steps).** After a step on a fresh factorisation, the next steps reuse it with
@@ -41,6 +42,9 @@ GROWTH = 1.5
 
 PREDICT = 8
 """Blocks predicted along each loop closure of the update that forced an analysis, each direction."""
+
+REORDER = 8
+"""Analyses at one capacity that reuse the last elimination order before AMD runs again."""
 
 CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
@@ -92,15 +96,16 @@ def edge_positions(pattern, keys, first, ci: np.ndarray, cj: np.ndarray):
 
 def _predicted(edge_from: np.ndarray, edge_to: np.ndarray, n: int, capacity: int, recent: np.ndarray):
     """``(from, to)`` of the blocks an analysis adds ahead: the chain ``(v, v+1)`` from vertex ``n−1`` to
-    the capacity, and ``(lo ± s, hi + s)`` for the loop closures ``recent`` (edge positions), in range."""
+    the capacity, and the cone ``(lo + t, hi + s)`` of each loop closure ``recent`` (edge positions), in range."""
     chain = np.arange(max(n - 1, 0), capacity - 1, dtype=np.int64)
     lo = np.minimum(edge_from[recent], edge_to[recent])
     hi = np.maximum(edge_from[recent], edge_to[recent])
     loops = hi - lo > 1
-    s = np.arange(1, PREDICT + 1)
+    # a re-traversal advances the older end at its own pace, either way: a cone of blocks ahead
+    s = np.repeat(np.arange(1, PREDICT + 1), 4 * np.arange(1, PREDICT + 1) + 5)
+    t = np.concatenate([np.arange(-(k + 2), 3 * k + 3) for k in range(1, PREDICT + 1)])
     lo, hi = lo[loops, None], hi[loops, None]
-    a = np.concatenate([(lo + s).ravel(), (lo - s).ravel()])
-    b = np.concatenate([(hi + s).ravel(), (hi + s).ravel()])
+    a, b = (lo + t).ravel(), (hi + s).ravel()
     keep = (a >= 0) & (b < capacity) & (a != b)
     return np.concatenate([chain, a[keep]]), np.concatenate([chain + 1, b[keep]])
 
@@ -154,7 +159,11 @@ class WholeGraph:
         self.held[:n] = held
         self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d)
         self.keys, self.first = _off_keys(pattern)
-        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, "amd")
+        # a few new blocks at the same capacity: the last elimination order stays good (AMD is a third of an
+        # analysis); it is recomputed with the capacity, the held set, or every REORDER analyses
+        same = self.factor is not None and self.factor.n == pattern.dimension and self.analyses % REORDER
+        order = self.factor.permutation if same and self.factor._factorized else None
+        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, "amd", permutation=order)
         variable = pattern.variable_of
         hessian, gradient, _ = edge_positions(pattern, self.keys, self.first, variable[i], variable[j])
         self.hessian_at.n = self.gradient_at.n = 0
