@@ -102,6 +102,7 @@ class IncrementalOptimizer:
         self._terms = Rows(())  # per edge: s = eᵀΩe, or ρ(s) with a loss
         self._batch = _Batch(group.matrix_size, group.dim)
         self.last_update: UpdateInfo | None = None
+        self._version = 0
 
     # ------------------------------------------------------------------ reading
 
@@ -263,6 +264,7 @@ class IncrementalOptimizer:
             kind, vertices, iterations = self._solve(touched)
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
         self.last_update = info
+        self._version += 1  # a covariance factorised before this update is stale
         return info
 
     def _solve(self, touched: list[int]) -> tuple[str, int, int]:
@@ -332,6 +334,7 @@ class IncrementalOptimizer:
         graph = replace(self.graph(), fixed=self.held())
         result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params)
         self._store.poses.view[:] = result.poses
+        self._version += 1  # the estimate changed: a covariance factorised before is stale
         self._refresh_terms(np.arange(self._store.num_edges))
         return result
 
@@ -340,11 +343,12 @@ class IncrementalOptimizer:
     def marginal_covariance(self, vertex_id: int) -> np.ndarray:
         """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
         convention; zero for a held vertex)."""
-        from posegraph.analysis.covariance import marginal_covariances
-
-        index = self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")
-        graph = replace(self.graph(), fixed=self.held())
-        return marginal_covariances(graph, graph.poses, index)[0]
+        index = int(self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")[0])
+        held = self.held()
+        if held[index]:
+            return np.zeros((self.group.dim, self.group.dim))
+        # the held analysis of the whole graph: one factorisation per update, d solves per call
+        return self._whole.marginal(held, index, self._version)
 
     def joint_covariance(self, vertex_ids) -> np.ndarray:
         """``(k·d, k·d)`` joint covariance of a few poses at the current estimate."""

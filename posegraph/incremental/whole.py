@@ -46,6 +46,9 @@ PREDICT = 8
 REORDER = 8
 """Analyses at one capacity that reuse the last elimination order before AMD runs again."""
 
+BACKTRACK = 6
+"""Halvings of an overshooting fresh step tried before the damped batch solver takes over."""
+
 CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
 
@@ -231,15 +234,55 @@ class WholeGraph:
             trial = objective.evaluate(poses) if decrement > 0 else None
             if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
                 poses[:] = before
-                if fresh:
+                if not fresh:
+                    fresh = True  # the chord step failed: refactorise at this point
+                    continue
+                trial = self._backtrack(objective, before, step, n, evaluation.cost)
+                if trial is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                fresh = True  # the chord step failed: refactorise at this point
+                previous, evaluation = np.inf, trial  # far from the optimum still: refactorise next
                 continue
             fresh = not fresh and decrement > CHORD_RATE * previous
             previous, evaluation = decrement, trial
         return True, iteration, self._terms(objective, evaluation)
 
+    def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
+        """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the
+        step halved up to BACKTRACK times, the first that lowers the cost kept (its evaluation), else
+        None with the poses as ``before``. Cheaper than handing the graph to the damped batch solver."""
+        poses, group = self.store.poses.view, self.store.group
+        tangent = self.pattern.expand(step)[:n]
+        for halving in range(1, BACKTRACK + 1):
+            poses[:] = before @ group.exp(tangent * 0.5**halving)
+            trial = objective.evaluate(poses)
+            if trial.cost < cost:
+                return trial
+        poses[:] = before
+        return None
+
     def _terms(self, objective: Objective, evaluation) -> np.ndarray:
         s = squared_norms(evaluation.residuals, objective.information)
         return s if self.loss is None else self.loss.rho(s)
+
+    def marginal(self, held: np.ndarray, vertex: int, version) -> np.ndarray:
+        """``(d, d)`` block of ``H⁻¹`` (H without loss weights, priors included: the convention of
+        :func:`posegraph.analysis.covariance.marginal_covariances`) of free ``vertex`` at the current poses.
+
+        One linearisation and numeric factorisation on the held analysis per ``version`` (the caller's
+        update count): further calls in the same version are d triangular solves each.
+        """
+        if getattr(self, "_factored_version", None) != version or not self._ready(held):
+            if not self._ready(held):
+                self._analyse(held)
+            objective, poses = Objective(self._objective(held).graph, None), self.store.poses.view
+            blocks = objective.linearize(poses, objective.evaluate(poses))
+            data, _ = self._system(blocks, self.store.num_vertices, True)
+            self.factor.factorize(data)
+            self._factored_version = version
+        d = self.pattern.block_size
+        rows = d * int(self.pattern.variable_of[vertex]) + np.arange(d)
+        unit = np.zeros((self.pattern.dimension, d))
+        unit[rows, np.arange(d)] = 1.0
+        block = self.factor.solve(unit)[rows]
+        return 0.5 * (block + block.T)
