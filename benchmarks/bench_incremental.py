@@ -32,6 +32,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "datasets"
 SESYNC = Path("/work/data-sesync")
+EXTRA = Path("/work/data-incr")
+"""Graphs fetched for this benchmark, outside the repository (w10000)."""
 GRAPHS = ("intel", "manhattan", "city10000", "w10000", "sphere2500", "parking-garage", "torus3D", "synthetic100k")
 TARGET_RATIO = 0.5
 COST_FLOOR = 1e-9
@@ -39,7 +41,7 @@ COST_FLOOR = 1e-9
 
 
 def graph_path(name: str) -> Path | None:
-    for folder in (SHARED, SESYNC):
+    for folder in (SHARED, SESYNC, EXTRA):
         path = folder / f"{name}.g2o"
         if path.exists():
             return path
@@ -99,8 +101,11 @@ def run_ours(graph, check_every: int) -> dict:
             opt = result.optimizer
             checks.append((n,) + batch_excess(prefix(graph, n), opt.poses))
 
-    result = replay(graph, 1, optimizer=IncrementalOptimizer(graph.group), progress=progress)
-    return {"seconds": result.seconds.tolist(), "checks": checks}
+    opt = IncrementalOptimizer(graph.group)
+    result = replay(graph, 1, optimizer=opt, progress=progress)
+    kinds = {k: result.kinds.count(k) for k in set(result.kinds)}
+    return {"seconds": result.seconds.tolist(), "checks": checks, "analyses": opt._whole.analyses,
+            "factorizations": opt._whole.factorizations, "kinds": kinds}
 
 
 def _gtsam_types(graph):
@@ -118,10 +123,23 @@ def _gtsam_types(graph):
 
 
 def run_gtsam(graph, check_every: int) -> dict:
+    """ISAM2 with default params; when Cholesky throws (``IndeterminantLinearSystem``), the whole replay again with QR."""
+    try:
+        return dict(_run_isam2(graph, check_every, None), factorization="CHOLESKY")
+    except RuntimeError as err:
+        if "ndetermin" not in str(err):  # gtsam says "Indeterminate linear system"
+            raise
+        return dict(_run_isam2(graph, check_every, "QR"), factorization="QR", cholesky_error=str(err).splitlines()[0])
+
+
+def _run_isam2(graph, check_every: int, factorization) -> dict:
     import gtsam
 
     _, between, prior, to_gtsam, to_matrix = _gtsam_types(graph)
-    isam = gtsam.ISAM2(gtsam.ISAM2Params())
+    params = gtsam.ISAM2Params()
+    if factorization is not None:
+        params.setFactorization(factorization)
+    isam = gtsam.ISAM2(params)
     order = np.argsort(graph.ids, kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(order.shape[0])
@@ -173,6 +191,7 @@ def worker(tool: str, name: str, check_every: int) -> dict:
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "excess_mean": float(ex.mean()), "excess_max": float(ex.max()), "excess_end": float(ex[-1]),
         "checks": data["checks"], "per_update": s.tolist(),
+        **{k: data[k] for k in ("factorization", "cholesky_error", "analyses", "factorizations", "kinds") if k in data},
     }
 
 

@@ -75,6 +75,7 @@ def commit_batch(opt, batch) -> list[int]:
         keep = np.ones(opt._terms.n, dtype=bool)
         keep[positions] = False
         opt._terms.keep(keep)
+        opt._whole.reset()  # the scatter positions follow the edge order
     if batch.edges:
         touched += _add_edges(opt, batch, new)
     for kind, add in (("pose_priors", store.add_pose_priors), ("position_priors", store.add_position_priors)):
@@ -101,6 +102,10 @@ def _add_edges(opt, batch, new: np.ndarray) -> list[int]:
     opt._terms.extend(np.zeros(i.shape[0]))
     touched = np.concatenate([i[~tree], j[~tree]]).tolist()
     ids, fixed = store.ids.view, store.fixed.view
+    released = []
     for a, b in zip(i.tolist(), j.tolist()):
-        touched += components.join(a, b, ids, fixed)
-    return touched
+        released += components.join(a, b, ids, fixed)
+    # a new vertex released from being its own anchor was placed by composition (a tree edge): it needs no
+    # solve; were it joined by a non-tree edge only, that edge's ends are touched already
+    first_new = int(new[0]) if new.size else store.num_vertices
+    return touched + [v for v in released if v < first_new]

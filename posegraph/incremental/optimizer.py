@@ -33,6 +33,7 @@ from posegraph.errors import GraphError
 from posegraph.incremental.components import Components
 from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
 from posegraph.incremental.store import GraphStore, Rows, check_information, check_poses
+from posegraph.incremental.whole import WholeGraph
 from posegraph.lie.group import SE3
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.params import SolverParams
@@ -88,17 +89,20 @@ class IncrementalOptimizer:
     """
 
     def __init__(self, group=SE3, *, tolerance: float = 1e-8, params: SolverParams | None = None, verify: bool = False,
-                 wildfire: float = 1e-2, initial_radius: int = 8, full_fraction: float = 0.5):
+                 wildfire: float = 1e-2, initial_radius: int = 8, full_fraction: float = 0.5, whole: bool = True):
         if not tolerance > 0:
             raise ValueError(f"tolerance must be positive, got {tolerance}")
         self.group, self.tolerance, self.verify = group, float(tolerance), bool(verify)
         self.params = SolverParams() if params is None else params
         self.wildfire, self.initial_radius, self.full_fraction = wildfire, initial_radius, full_fraction
         self._store = GraphStore(group)
+        self.whole = bool(whole)
+        self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
         self._terms = Rows(())  # per edge: s = eᵀΩe, or ρ(s) with a loss
         self._batch = _Batch(group.matrix_size, group.dim)
         self.last_update: UpdateInfo | None = None
+        self._version = 0
 
     # ------------------------------------------------------------------ reading
 
@@ -260,6 +264,7 @@ class IncrementalOptimizer:
             kind, vertices, iterations = self._solve(touched)
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
         self.last_update = info
+        self._version += 1  # a covariance factorised before this update is stale
         return info
 
     def _solve(self, touched: list[int]) -> tuple[str, int, int]:
@@ -267,11 +272,22 @@ class IncrementalOptimizer:
         seeds = [v for v in touched if not held[v]]
         if not seeds:
             return "exact", 0, 0
-        kind, vertices, iterations = self._solve_region(seeds)
+        kind, vertices, iterations = self._solve_whole() if self.whole else self._solve_region(seeds)
         if self.verify and kind != "full":
             self.optimize(method="gn")
             kind = "full"
         return kind, vertices, iterations
+
+    def _solve_whole(self) -> tuple[str, int, int]:
+        """Gauss-Newton on the whole graph with the held analysis (:mod:`posegraph.incremental.whole`);
+        the damped batch solver when a step fails."""
+        held = self._components.held_mask()
+        ok, iterations, terms = self._whole.solve(held, self.tolerance)
+        if not ok:
+            self.optimize()
+            return "full", int(np.count_nonzero(~held)), iterations + 1
+        self._terms.view[:] = terms
+        return "whole", int(np.count_nonzero(~held)), iterations
 
     def _solve_region(self, seeds: list[int]) -> tuple[str, int, int]:
         store, held = self._store, self._components.held
@@ -318,6 +334,7 @@ class IncrementalOptimizer:
         graph = replace(self.graph(), fixed=self.held())
         result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params)
         self._store.poses.view[:] = result.poses
+        self._version += 1  # the estimate changed: a covariance factorised before is stale
         self._refresh_terms(np.arange(self._store.num_edges))
         return result
 
@@ -326,11 +343,12 @@ class IncrementalOptimizer:
     def marginal_covariance(self, vertex_id: int) -> np.ndarray:
         """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
         convention; zero for a held vertex)."""
-        from posegraph.analysis.covariance import marginal_covariances
-
-        index = self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")
-        graph = replace(self.graph(), fixed=self.held())
-        return marginal_covariances(graph, graph.poses, index)[0]
+        index = int(self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")[0])
+        held = self.held()
+        if held[index]:
+            return np.zeros((self.group.dim, self.group.dim))
+        # the held analysis of the whole graph: one factorisation per update, d solves per call
+        return self._whole.marginal(held, index, self._version)
 
     def joint_covariance(self, vertex_ids) -> np.ndarray:
         """``(k·d, k·d)`` joint covariance of a few poses at the current estimate."""

@@ -1,0 +1,288 @@
+"""Gauss-Newton on the whole graph with its symbolic analysis held from update to update.
+
+A loop closure moves the whole loop, so a solve around the touched vertices grows to most of the
+graph anyway; here every update with work to do runs undamped Gauss-Newton on the *whole* graph, and
+what does not change between updates is kept:
+
+* **The analysis.** The block pattern of H (:func:`posegraph.solve.sparsity.analyze_pattern`) and
+  CHOLMOD's symbolic factorisation (AMD) are made for a *capacity* larger than the graph (×1.5), the
+  vertices not yet added decoupled (unit diagonal, zero gradient: their step is 0). The pattern holds
+  the blocks of every edge so far, the odometry chain ``(v, v+1)`` of the vertices to come, and, for
+  each loop closure ``(lo, hi)`` added since the last analysis, the cone of blocks a re-traversal
+  would add next (``(lo + t, hi + s)``, ``1 ≤ s ≤ PREDICT``, ``−s−2 ≤ t ≤ 3s+2``: the older end may
+  advance at another pace, or back). A new edge whose block is in the pattern costs only its
+  scatter positions; the analysis is redone when the capacity is exceeded, a block is missing or the
+  held set (FIX, anchors) changed — amortised over many updates.
+* **The factor (chord steps).** After a step on a fresh factorisation, the next steps reuse it with
+  the exact gradient at the new point (``δ = −H_old⁻¹ g``): the Hessian blocks and the numeric
+  factorisation are skipped while the Newton decrement falls by at least ×4 per step; else the next
+  step refactorises. The stopping test is the decrement ``½ gᵀH⁻¹g ≤ tolerance · cost`` at the current
+  point (the excess over the optimum, to second order), so accuracy rests on the exact gradient.
+
+Each step's cost is the exact one (:class:`posegraph.solve.objective.Objective`, losses and priors
+included); a step that raises it restores the poses (after a chord step: a refactorised step is tried;
+after a fresh one: :meth:`WholeGraph.solve` returns False and the caller runs the damped batch solver).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky
+from posegraph.model.graph import PoseGraph
+from posegraph.solve.objective import Objective
+from posegraph.solve.residuals import squared_norms
+from posegraph.solve.sparsity import analyze_pattern
+from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
+
+__all__ = ["WholeGraph", "edge_positions", "GROWTH", "PREDICT"]
+
+GROWTH = 1.5
+"""Capacity of an analysis relative to the vertex count it was made at."""
+
+PREDICT = 8
+"""Blocks predicted along each loop closure of the update that forced an analysis, each direction."""
+
+REORDER = 8
+"""Analyses at one capacity that reuse the last elimination order before AMD runs again."""
+
+BACKTRACK = 6
+"""Halvings of an overshooting fresh step tried before the damped batch solver takes over."""
+
+CHORD_RATE = 0.25
+"""A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
+
+
+def _off_keys(pattern) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, first)``: sorted ``col·p + row`` of the stored off-diagonal blocks (``(k,)``) and, per
+    block column, the index of its first off-diagonal block in ``keys`` (``(p,)``)."""
+    p = pattern.num_variables
+    per_column = np.diff(pattern.block_indptr).astype(np.int64) - 1  # the diagonal block comes first
+    column = np.repeat(np.arange(p, dtype=np.int64), np.diff(pattern.block_indptr))
+    first_slot = np.zeros(pattern.block_indices.shape[0], dtype=bool)
+    first_slot[pattern.block_indptr[:-1]] = True
+    keys = column[~first_slot] * p + pattern.block_indices[~first_slot].astype(np.int64)
+    return keys, np.concatenate(([0], np.cumsum(per_column)))[:-1]
+
+
+def edge_positions(pattern, keys, first, ci: np.ndarray, cj: np.ndarray):
+    """Where the entries of edges joining variables ``ci``, ``cj`` ``(m,)`` (−1: held) go.
+
+    Returns ``(hessian (m, 3, d²), gradient (m, 2, d), found (m,) bool)``: the position in the lower-CSC
+    ``data`` of each entry (row-major) of ``H_ii, H_jj, H_ij``, ``nnz`` where not stored (upper halves of
+    diagonal blocks, held variables); the rows of ``g_i, g_j``, ``dimension`` for held variables; and
+    whether the edge's off-diagonal block is in the pattern (edges at a held vertex have none).
+    ``H_ij`` is stored at block (``ci``, ``cj``) when ``ci > cj``, else transposed at (``cj``, ``ci``).
+    """
+    d, nnz, p = pattern.block_size, pattern.nnz, pattern.num_variables
+    indptr = pattern.indptr.astype(np.int64)
+    a, b = np.repeat(np.arange(d), d), np.tile(np.arange(d), d)
+
+    def diagonal(c):
+        at = indptr[d * np.maximum(c, 0)[:, None] + b] + (a - b)
+        return np.where((c >= 0)[:, None] & (a >= b), at, nnz)
+
+    both = (ci >= 0) & (cj >= 0)
+    lo, hi = np.minimum(ci, cj), np.maximum(ci, cj)
+    key = np.where(both, lo * p + hi, -1)
+    slot = np.minimum(np.searchsorted(keys, key), max(keys.shape[0] - 1, 0))
+    found = ~both | ((keys.shape[0] > 0) & (keys[slot] == key) if keys.shape[0] else ~both)
+    rank = slot - first[np.maximum(lo, 0)]
+    as_is = (ci > cj)[:, None]
+    row, col = np.where(as_is, a, b), np.where(as_is, b, a)  # entry of the stored block
+    off = indptr[d * np.maximum(lo, 0)[:, None] + col] + (d - col) + d * rank[:, None] + row
+    off = np.where((both & found)[:, None], off, nnz)
+    rows = lambda c: np.where((c >= 0)[:, None], d * c[:, None] + np.arange(d), pattern.dimension)  # noqa: E731
+    hessian = np.stack([diagonal(ci), diagonal(cj), off], axis=1)
+    return hessian, np.stack([rows(ci), rows(cj)], axis=1), found
+
+
+def _predicted(edge_from: np.ndarray, edge_to: np.ndarray, n: int, capacity: int, recent: np.ndarray):
+    """``(from, to)`` of the blocks an analysis adds ahead: the chain ``(v, v+1)`` from vertex ``n−1`` to
+    the capacity, and the cone ``(lo + t, hi + s)`` of each loop closure ``recent`` (edge positions), in range."""
+    chain = np.arange(max(n - 1, 0), capacity - 1, dtype=np.int64)
+    lo = np.minimum(edge_from[recent], edge_to[recent])
+    hi = np.maximum(edge_from[recent], edge_to[recent])
+    loops = hi - lo > 1
+    # a re-traversal advances the older end at its own pace, either way: a cone of blocks ahead
+    s = np.repeat(np.arange(1, PREDICT + 1), 4 * np.arange(1, PREDICT + 1) + 5)
+    t = np.concatenate([np.arange(-(k + 2), 3 * k + 3) for k in range(1, PREDICT + 1)])
+    lo, hi = lo[loops, None], hi[loops, None]
+    a, b = (lo + t).ravel(), (hi + s).ravel()
+    keep = (a >= 0) & (b < capacity) & (a != b)
+    return np.concatenate([chain, a[keep]]), np.concatenate([chain + 1, b[keep]])
+
+
+class WholeGraph:
+    """The held analysis of the whole graph's normal equations and Gauss-Newton on it (module docstring).
+
+    ``store`` is the optimiser's :class:`~posegraph.incremental.store.GraphStore`; ``held`` ``(n,)`` bool
+    the vertices held (FIX, anchors). :meth:`reset` drops everything (after edges are removed).
+    """
+
+    def __init__(self, store, loss=None):
+        from posegraph.incremental.store import Rows
+
+        self.store, self.loss = store, loss
+        d = store.group.dim
+        self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
+        self.gradient_at = Rows((2, d), np.int64)
+        self.pattern = self.factor = None
+        self.held = np.zeros(0, dtype=bool)
+        self.analyses = self.factorizations = 0
+
+    def reset(self) -> None:
+        self.pattern = self.factor = None
+        self.hessian_at.n = self.gradient_at.n = 0
+
+    def _ready(self, held: np.ndarray) -> bool:
+        """Scatter positions for every edge; False when the analysis no longer covers the graph."""
+        store, n = self.store, self.store.num_vertices
+        if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
+            return False
+        done, m = self.hessian_at.n, store.num_edges
+        if done < m:
+            variable = self.pattern.variable_of
+            ci, cj = variable[store.edge_from.view[done:]], variable[store.edge_to.view[done:]]
+            hessian, gradient, found = edge_positions(self.pattern, self.keys, self.first, ci, cj)
+            if not found.all():
+                return False
+            self.hessian_at.extend(hessian)
+            self.gradient_at.extend(gradient)
+        return True
+
+    def _analyse(self, held: np.ndarray) -> None:
+        """Pattern and symbolic factorisation for a capacity ×GROWTH the vertex count (module docstring)."""
+        store, n, d = self.store, self.store.num_vertices, self.store.group.dim
+        capacity = max(int(GROWTH * n) + 1, n + 64)
+        i, j = store.edge_from.view, store.edge_to.view
+        recent = np.arange(self.hessian_at.n if self.pattern is not None else 0, store.num_edges)
+        pi, pj = _predicted(i, j, n, capacity, recent)
+        self.held = np.zeros(capacity, dtype=bool)
+        self.held[:n] = held
+        self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d)
+        self.keys, self.first = _off_keys(pattern)
+        # a few new blocks at the same capacity: the last elimination order stays good (AMD is a third of an
+        # analysis); it is recomputed with the capacity, the held set, or every REORDER analyses
+        same = self.factor is not None and self.factor.n == pattern.dimension and self.analyses % REORDER
+        order = self.factor.permutation if same and self.factor._factorized else None
+        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, "amd", permutation=order)
+        variable = pattern.variable_of
+        hessian, gradient, _ = edge_positions(pattern, self.keys, self.first, variable[i], variable[j])
+        self.hessian_at.n = self.gradient_at.n = 0
+        self.hessian_at.extend(hessian)
+        self.gradient_at.extend(gradient)
+        self.analyses += 1
+
+    def _system(self, blocks, n: int, hessian: bool):
+        """``(data (nnz,) or None, g (D,))`` of the whole graph from the per-edge ``blocks``; the rows of
+        vertices not yet added (``≥ n``) decoupled: unit diagonal, zero gradient (they have no edges)."""
+        pattern = self.pattern
+        size = pattern.dimension
+        g = np.bincount(self.gradient_at.view.ravel(), weights=blocks.gradient.ravel(), minlength=size + 1)[:size]
+        if blocks.priors is not None:
+            add_prior_gradient(pattern, g, blocks.priors)
+        if not hessian:
+            return None, g
+        values = np.stack(blocks.hessian_blocks, axis=1)  # (m, 3, d, d), as hessian_at
+        data = np.bincount(self.hessian_at.view.ravel(), weights=values.ravel(), minlength=pattern.nnz + 1)
+        if blocks.priors is not None:
+            add_prior_hessian(pattern, data, blocks.priors)
+        future = pattern.variable_of[n:]
+        rows = (pattern.block_size * future[future >= 0][:, None] + np.arange(pattern.block_size)).ravel()
+        data[pattern.diagonal[rows]] = 1.0
+        return data[: pattern.nnz], g
+
+    def _objective(self, held: np.ndarray) -> Objective:
+        """The solver's objective on the whole graph so far (views of the store, no copies)."""
+        s = self.store
+        graph = PoseGraph(ids=s.ids.view, poses=s.poses.view, edge_from=s.edge_from.view, edge_to=s.edge_to.view,
+                          measurements=s.measurements.view, information=s.information.view, fixed=held,
+                          group=s.group, priors=s.priors())
+        return Objective(graph, self.loss)
+
+    def solve(self, held: np.ndarray, tolerance: float, max_iterations: int = 30) -> tuple[bool, int, np.ndarray]:
+        """Gauss-Newton on the whole graph, in place on the store's poses, until ``½ gᵀH⁻¹g ≤ tolerance · cost``.
+
+        Returns ``(ok, iterations, terms (m,))`` with ``terms`` each edge's ``eᵀΩe`` (``ρ`` of it with a
+        loss) at the final poses. ``ok`` False: a fresh step raised the cost or H was not positive
+        definite; the poses are then as before the call.
+        """
+        if not self._ready(held):
+            self._analyse(held)
+        n, d = self.store.num_vertices, self.store.group.dim
+        objective, poses = self._objective(held), self.store.poses.view
+        saved = poses.copy()
+        evaluation = objective.evaluate(poses)
+        fresh, previous = True, np.inf
+        for iteration in range(1, max_iterations + 1):
+            blocks = objective.linearize(poses, evaluation)
+            data, g = self._system(blocks, n, fresh)
+            if fresh:
+                try:
+                    self.factor.factorize(data)
+                except NotPositiveDefiniteError:
+                    poses[:] = saved
+                    return False, iteration, np.zeros(0)
+                self.factorizations += 1
+            step = -self.factor.solve(g)
+            decrement = -0.5 * float(g @ step)
+            if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
+                break  # the current point is within tolerance of the optimum: no step, no evaluation
+            before = poses.copy()
+            poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
+            trial = objective.evaluate(poses) if decrement > 0 else None
+            if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
+                poses[:] = before
+                if not fresh:
+                    fresh = True  # the chord step failed: refactorise at this point
+                    continue
+                trial = self._backtrack(objective, before, step, n, evaluation.cost)
+                if trial is None:
+                    poses[:] = saved
+                    return False, iteration, np.zeros(0)
+                previous, evaluation = np.inf, trial  # far from the optimum still: refactorise next
+                continue
+            fresh = not fresh and decrement > CHORD_RATE * previous
+            previous, evaluation = decrement, trial
+        return True, iteration, self._terms(objective, evaluation)
+
+    def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
+        """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the
+        step halved up to BACKTRACK times, the first that lowers the cost kept (its evaluation), else
+        None with the poses as ``before``. Cheaper than handing the graph to the damped batch solver."""
+        poses, group = self.store.poses.view, self.store.group
+        tangent = self.pattern.expand(step)[:n]
+        for halving in range(1, BACKTRACK + 1):
+            poses[:] = before @ group.exp(tangent * 0.5**halving)
+            trial = objective.evaluate(poses)
+            if trial.cost < cost:
+                return trial
+        poses[:] = before
+        return None
+
+    def _terms(self, objective: Objective, evaluation) -> np.ndarray:
+        s = squared_norms(evaluation.residuals, objective.information)
+        return s if self.loss is None else self.loss.rho(s)
+
+    def marginal(self, held: np.ndarray, vertex: int, version) -> np.ndarray:
+        """``(d, d)`` block of ``H⁻¹`` (H without loss weights, priors included: the convention of
+        :func:`posegraph.analysis.covariance.marginal_covariances`) of free ``vertex`` at the current poses.
+
+        One linearisation and numeric factorisation on the held analysis per ``version`` (the caller's
+        update count): further calls in the same version are d triangular solves each.
+        """
+        if getattr(self, "_factored_version", None) != version or not self._ready(held):
+            if not self._ready(held):
+                self._analyse(held)
+            objective, poses = Objective(self._objective(held).graph, None), self.store.poses.view
+            blocks = objective.linearize(poses, objective.evaluate(poses))
+            data, _ = self._system(blocks, self.store.num_vertices, True)
+            self.factor.factorize(data)
+            self._factored_version = version
+        d = self.pattern.block_size
+        rows = d * int(self.pattern.variable_of[vertex]) + np.arange(d)
+        unit = np.zeros((self.pattern.dimension, d))
+        unit[rows, np.arange(d)] = 1.0
+        block = self.factor.solve(unit)[rows]
+        return 0.5 * (block + block.T)
