@@ -346,29 +346,36 @@ class _System:
         return start + (zc - b) + self.layout.row_start[which][:, None] + a
 
     def diagonal_positions(self, variables: np.ndarray, z: int) -> np.ndarray:
-        """``(m, z²)`` data positions of ``H_cc`` for variables ``c`` (−1: held); ``nnz`` where not stored."""
+        """``(m, z²)`` data positions of ``H_cc`` for variables ``c`` of size ``z`` (−1: held); ``nnz``
+        where not stored. Gathered from a table of one row per variable (and a last "not stored" row
+        that index −1 picks), rather than computed entry by entry for every factor."""
         a, b = _grid(z, z)
-        free = variables >= 0
-        if not free.any():
-            return np.full((variables.shape[0], z * z), self.nnz, dtype=np.int64)
-        slots = self.diagonal_slots(np.where(free, variables, 0), z)
-        return np.where(free[:, None] & (a >= b), slots, self.nnz)
+        sizes = np.diff(self.offsets)
+        table = np.full((sizes.size + 1, z * z), self.nnz, dtype=np.intp)
+        own = np.flatnonzero(sizes == z)
+        lower = np.flatnonzero(a >= b)
+        table[own[:, None], lower] = self.diagonal_slots(own, z)[:, lower]
+        return table[variables]
 
     def pair_positions(self, ci: np.ndarray, cj: np.ndarray, zi: int, zj: int):
         """``(H_ii (m, zi²), H_jj (m, zj²), H_ij (m, zi·zj))`` data positions for factors joining
-        variables ``ci`` and ``cj``. ``H_ij`` sits at block (``ci``, ``cj``): stored as is when
-        ``ci > cj``, else as its transpose at (``cj``, ``ci``), entry ``(a, b)`` at ``(b, a)``."""
-        m = ci.shape[0]
+        variables ``ci`` (size ``zi``) and ``cj`` (size ``zj``). ``H_ij`` sits at block (``ci``, ``cj``):
+        stored as is when ``ci > cj``, else as its transpose at (``cj``, ``ci``), entry ``(a, b)`` at
+        ``(b, a)``: rows ``0..k−1`` of the gathered table hold the stored blocks, rows ``k..2k−1``
+        their transposes, row ``2k`` "not stored"."""
+        k, blocks = self.blocks.key.size, self.blocks
+        sizes = np.diff(self.offsets)
+        table = np.full((2 * k + 1, zi * zj), self.nnz, dtype=np.intp)
+        as_is = np.flatnonzero((sizes[blocks.row] == zi) & (sizes[blocks.col] == zj))
+        table[as_is] = self.off_slots(as_is, zi, zj)
+        flipped = np.flatnonzero((sizes[blocks.row] == zj) & (sizes[blocks.col] == zi))
+        table[k + flipped] = self.off_slots(flipped, zj, zi).reshape(-1, zj, zi).swapaxes(1, 2).reshape(-1, zi * zj)
+        which = np.full(ci.shape[0], 2 * k, dtype=np.intp)
         both = (ci >= 0) & (cj >= 0)
-        off = np.full((m, zi * zj), self.nnz, dtype=np.int64)
-        key = np.minimum(ci, cj) * self.blocks.stride + np.maximum(ci, cj)
-        lower, upper = np.flatnonzero(both & (ci > cj)), np.flatnonzero(both & (ci < cj))
-        if lower.size:
-            off[lower] = self.off_slots(np.searchsorted(self.blocks.key, key[lower]), zi, zj)
-        if upper.size:
-            flipped = self.off_slots(np.searchsorted(self.blocks.key, key[upper]), zj, zi)
-            off[upper] = flipped.reshape(-1, zj, zi).swapaxes(1, 2).reshape(-1, zi * zj)
-        return self.diagonal_positions(ci, zi), self.diagonal_positions(cj, zj), off
+        if np.any(both):
+            a, b = ci[both], cj[both]
+            which[both] = np.searchsorted(blocks.key, np.minimum(a, b) * blocks.stride + np.maximum(a, b)) + k * (a < b)
+        return self.diagonal_positions(ci, zi), self.diagonal_positions(cj, zj), table[which]
 
     def rows(self, variables: np.ndarray, z: int) -> np.ndarray:
         """``(m, z)`` rows of ``g`` of each variable's entries; ``dimension`` for held variables."""
