@@ -302,16 +302,26 @@ def _scalar_layout(blocks: _Blocks, sizes: np.ndarray, offsets: np.ndarray) -> _
     row_start = before - before[column_first] if k else np.zeros(0, dtype=np.int64)
     layout = _Layout(indptr, np.empty(nnz, dtype=np.int64), row_start.astype(np.int64))
     system = _System(blocks, layout, offsets, nnz)
-    for z in np.unique(sizes):
+    for z in _distinct(sizes):
         variables = np.flatnonzero(sizes == z)
         a, b = _grid(int(z), int(z))
         keep = a >= b
         layout.indices[system.diagonal_slots(variables, int(z))[:, keep]] = offsets[variables][:, None] + a[keep]
-    for zr, zc in set(zip(row_sizes.tolist(), sizes[blocks.col].tolist())):
-        which = np.flatnonzero((row_sizes == zr) & (sizes[blocks.col] == zc))
+    column_sizes = sizes[blocks.col]
+    stride = int(sizes.max(initial=0)) + 1
+    for pair in _distinct(row_sizes * stride + column_sizes):  # the (row size, column size) pairs present
+        zr, zc = divmod(pair, stride)
+        which = np.flatnonzero((row_sizes == zr) & (column_sizes == zc))
         a, _ = _grid(zr, zc)
         layout.indices[system.off_slots(which, zr, zc)] = offsets[blocks.row[which]][:, None] + a
     return layout
+
+
+def _distinct(values: np.ndarray) -> list:
+    """The distinct values of an int array, ascending, as Python ints (sort + mask: ``np.unique``
+    imports ``numpy.ma`` on first use, ~7 ms of a run; the block sizes take one or two values)."""
+    ordered = np.sort(values)
+    return ordered[np.concatenate(([True], ordered[1:] != ordered[:-1]))].tolist() if ordered.size else []
 
 
 def _grid(rows: int, columns: int):
