@@ -48,8 +48,10 @@ def file_initialization(graph: PoseGraph) -> np.ndarray:
 def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarray:
     """Initial poses ``(n, k, k)`` (``k = graph.group.matrix_size``) for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
 
-    A landmark graph's poses start from its pose edges alone (the gauge of each of their components
-    held as in a pose graph); :func:`posegraph.init.landmarks.initialize_landmarks` places the landmarks.
+    A landmark graph's chordal start is the relaxation over poses and points together
+    (:func:`posegraph.init.relaxation.relaxed_start`; with priors, or when that system is singular,
+    and for ``"odometry"``: the pose edges alone, each component of them anchored as in a pose graph);
+    :func:`posegraph.init.landmarks.initialize_landmarks` then places the landmarks.
 
     ``options`` go to the method's function: ``linear_solver=`` for ``"chordal"``, ``tree=`` for
     ``"odometry"``.
@@ -57,9 +59,7 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if graph.landmarks is not None and method != "file":
-        # the poses from the pose edges alone, each component of them anchored as a pose graph's;
-        # the landmarks then follow from the poses (posegraph.init.landmarks)
-        return initialize(replace(graph, landmarks=None), method, **options)
+        return _landmark_graph_start(graph, method, options)
     if graph.num_vertices == 0:
         k = graph.group.matrix_size
         return np.zeros((0, k, k))
@@ -72,3 +72,17 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
     poses = chordal_initialization(graph, **options)
     release_free_memory()  # its systems' pages, which the solver's large arrays would not reuse
     return poses
+
+
+def _landmark_graph_start(graph: PoseGraph, method: str, options: dict) -> np.ndarray:
+    """A landmark graph's poses: the relaxation with its landmarks (``"chordal"``, no priors), else the
+    start of its pose edges alone (:func:`initialize`'s docstring)."""
+    if method == "chordal" and graph.priors is None and set(options) <= {"linear_solver"}:  # (it solves by CHOLMOD or SuperLU)
+        from posegraph.init.relaxation import relaxed_start
+        from posegraph.linalg.cholmod import NotPositiveDefiniteError
+
+        try:
+            return relaxed_start(graph)
+        except NotPositiveDefiniteError:
+            pass  # a pose or point its linear terms do not fix: the pose edges' start, as below
+    return initialize(replace(graph, landmarks=None), method, **options)

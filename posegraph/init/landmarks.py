@@ -63,7 +63,7 @@ def _rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum("qij,qj->qi", R, v)
 
 
-def _range_information(z: np.ndarray, information: np.ndarray) -> np.ndarray:
+def range_point_information(z: np.ndarray, information: np.ndarray) -> np.ndarray:
     """``J⁻ᵀ Ω J⁻¹`` ``(q, 2, 2)``: the information of ``y = r [cos θ, sin θ]`` from that of ``(θ, r)``."""
     theta, r = z[:, 0], np.where(np.abs(z[:, 1]) < 1e-9, 1e-9, z[:, 1])
     J = np.empty((len(z), 2, 2))
@@ -92,7 +92,7 @@ def _terms(family, poses: np.ndarray, estimate: np.ndarray | None, range_guess: 
         normal = weight[:, None, None] * n[:, :, None] * n[:, None, :]
         return normal, (normal @ t[:, :, None])[:, :, 0], t + _rotate(R, _unit(z[:, 0]))
     if family.kind == "bearing_range":
-        y, information = z[:, 1:2] * _unit(z[:, 0]), _range_information(z, information)
+        y, information = z[:, 1:2] * _unit(z[:, 0]), range_point_information(z, information)
     else:
         y = z
     normal = R @ information @ np.swapaxes(R, 1, 2)

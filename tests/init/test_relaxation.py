@@ -1,0 +1,77 @@
+"""The landmark graph's relaxed start (posegraph/init/relaxation.py): exact without noise, better than
+the pose edges' chordal start where the landmarks close the loops."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from datasets.synthetic import landmark_graph
+from posegraph.init import initialize
+from posegraph.init.relaxation import relaxation_anchors, relaxed_start, rotation_basis, rotation_coordinates
+from posegraph.lie.group import SE2, SE3
+from posegraph.model.landmarks import Observations
+from posegraph.solve import optimize
+from posegraph.solve.residuals import cost
+
+
+@pytest.mark.parametrize("r", [2, 3])
+def test_rotation_coordinates_rebuild_the_rotation(r):
+    group = SE2 if r == 2 else SE3
+    rotations = group.exp(np.random.default_rng(0).normal(size=(5, group.dim)))[:, :r, :r]
+    basis = rotation_basis(r)
+    np.testing.assert_allclose(np.einsum("nk,kab->nab", rotation_coordinates(rotations, basis), basis), rotations, atol=1e-14)
+
+
+@pytest.mark.parametrize("group, kinds, offsets", [
+    (SE2, ("position",), False), (SE2, ("bearing_range", "prior"), False), (SE2, ("position", "bearing"), False),
+    (SE3, ("position",), True), (SE3, ("position", "prior"), True),
+])  # fmt: skip
+def test_noise_free_graphs_start_at_their_truth(group, kinds, offsets):
+    graph, truth, _ = landmark_graph(group, 15, 9, kinds, noise=0.0, seed=3, offsets=offsets)
+    graph = replace(graph, poses=truth @ group.exp(np.random.default_rng(1).normal(size=(15, group.dim)) * 0.3))
+    graph = replace(graph, poses=np.concatenate([truth[:1], graph.poses[1:]]))  # the anchor where the truth is
+    np.testing.assert_allclose(relaxed_start(graph), truth, atol=1e-9)
+
+
+def _loop_closed_by_landmarks(seed: int):
+    """A noisy odometry chain whose loops only the landmarks close (Victoria Park's shape)."""
+    return landmark_graph(SE2, 60, 12, ("position",), noise=0.05, seed=seed, per_landmark=8)[0]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_relaxation_starts_nearer_than_the_pose_edges_alone(seed):
+    graph = _loop_closed_by_landmarks(seed)
+    relaxed = relaxed_start(graph)
+    edges_only = initialize(replace(graph, landmarks=None), "chordal")
+    assert cost(graph, relaxed) < cost(graph, edges_only)
+    assert optimize(graph, relaxed).iterations <= optimize(graph, edges_only).iterations
+    np.testing.assert_array_equal(initialize(graph, "chordal"), relaxed)  # the default start of a landmark graph
+
+
+def test_points_fixed_or_unreached_are_held_and_a_singular_system_falls_back():
+    graph, _, _ = landmark_graph(SE2, 8, 4, ("position",), noise=0.02, seed=5)
+    lone = Observations("bearing", np.array([2]), np.array([4]), np.array([[0.4]]), np.array([[[50.0]]]), tag="EDGE_BEARING_SE2_XY")
+    landmarks = replace(graph.landmarks, ids=np.append(graph.landmarks.ids, 999), positions=np.vstack([graph.landmarks.positions, [[1.0, 2.0]]]),
+                        fixed=np.append(graph.landmarks.fixed, False), observations=graph.landmarks.observations + (lone,))  # fmt: skip
+    graph = replace(graph, landmarks=landmarks)
+    poses = relaxed_start(graph)  # the bearing-only landmark is held, not a singular column
+    assert np.all(np.isfinite(poses)) and relaxation_anchors(graph).sum() == 1
+    no_edges = replace(graph, edge_from=np.zeros(0, int), edge_to=np.zeros(0, int), measurements=np.zeros((0, 3, 3)),
+                       information=np.zeros((0, 3, 3)), edge_lines=None)  # fmt: skip
+    assert np.all(np.isfinite(initialize(no_edges, "chordal")))  # poses no term fixes: the pose edges' start
+
+
+VICTORIA = Path(__file__).resolve().parents[3] / "data-landmarks" / "victoriaPark-full.g2o.gz"
+
+
+@pytest.mark.skipif(not VICTORIA.exists(), reason=f"{VICTORIA} (g2o_frontend's Victoria Park, fetched outside the repository) is absent")
+def test_victoria_park_from_the_relaxation():
+    from posegraph.io.g2o import read_g2o
+
+    graph = read_g2o(VICTORIA)
+    result = optimize(graph)
+    assert result.converged and result.iterations <= 15 and 2 * result.final_cost < 400.0  # g2o's LM: 87,156
