@@ -21,7 +21,7 @@ with the held poses (:func:`relaxation_anchors`) and the ``FIX`` landmarks known
 to the right-hand side). Bearings, being bilinear, enter only through the landmarks' own start
 (:func:`posegraph.init.landmarks.initialize_landmarks`) and the solver.
 
-Measured (``docs/landmarks.md``): Victoria Park from this start converges in 9 LM iterations to
+Measured (``docs/landmarks.md``): Victoria Park from this start converges in 5 LM iterations to
 χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's poses: 87,156).
 """
 
