@@ -77,8 +77,10 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
 def _landmark_graph_start(graph: PoseGraph, method: str, options: dict) -> np.ndarray:
     """A landmark graph's poses: the relaxation with its landmarks (``"chordal"``, no priors), else the
     start of its pose edges alone (:func:`initialize`'s docstring)."""
-    if method == "chordal" and graph.priors is None and set(options) <= {"linear_solver"}:  # (it solves by CHOLMOD or SuperLU)
-        from posegraph.init.relaxation import relaxed_start
+    from posegraph.init.relaxation import MAX_ENTRIES, relaxation_entries, relaxed_start
+
+    # (linear_solver: the relaxation solves by CHOLMOD, or SuperLU without cvxopt)
+    if method == "chordal" and graph.priors is None and set(options) <= {"linear_solver"} and relaxation_entries(graph) <= MAX_ENTRIES:
         from posegraph.linalg.cholmod import NotPositiveDefiniteError
 
         try:

@@ -35,7 +35,20 @@ from posegraph.init.landmarks import range_point_information
 from posegraph.linalg import cholmod as cholmod_library
 from posegraph.model.graph import PoseGraph, connected_components, held_vertices
 
-__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis"]
+__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_entries", "MAX_ENTRIES"]
+
+MAX_ENTRIES = 30_000_000
+"""Largest number of normal-equation block entries (before duplicates are summed) the relaxation
+assembles, ~0.7 GB of triplets at the peak; larger graphs (a 3D landmark graph of ~70,000 pose edges:
+12×12 blocks) start from their pose edges alone (:func:`posegraph.init.initialize`)."""
+
+
+def relaxation_entries(graph: PoseGraph) -> int:
+    """The block entries :func:`relaxed_start`'s first solve assembles: ``(q + q)²`` per pose edge,
+    ``(q + r)²`` per landmark measurement (``q = K + r`` the pose block)."""
+    r = graph.group.space_dim
+    q = len(rotation_basis(r)) + r
+    return (2 * q) ** 2 * graph.num_edges + (q + r) ** 2 * graph.landmarks.num_measurements
 
 
 def rotation_basis(r: int) -> np.ndarray:
