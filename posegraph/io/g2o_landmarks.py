@@ -40,7 +40,6 @@ from posegraph.io.g2o_checks import check_finite, check_information, check_negat
 from posegraph.io.g2o_format import Record, _information_fields
 from posegraph.io.g2o_isam import information_of
 from posegraph.io.g2o_lines import Lines, parse_records
-from posegraph.model.landmarks import Landmarks, Observations
 
 VERTEX_XY_TAG = "VERTEX_XY"
 VERTEX_TRACKXYZ_TAG = "VERTEX_TRACKXYZ"
@@ -355,6 +354,8 @@ def assemble_landmarks(parsed: ParsedLandmarks, pose_ids: np.ndarray, poses: np.
     ``fix`` = ``(ids, lines)`` of the ``FIX`` lines: those naming landmarks hold them. ``offsets`` the
     ``PARAMS_SE3OFFSET`` matrices by id; ``pose_names`` names the pose vertex tags in messages.
     """
+    from posegraph.model.landmarks import Landmarks, Observations  # here: a pose graph never builds them
+
     s, vertices = parsed.space_dim, parsed.vertices
     raise_first(_vertex_errors(vertices, pose_ids, s, path))
     created, shift, notes = _created_ids(parsed, pose_ids, path)

@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from posegraph.lie.group import SE3, LieGroup
-from posegraph.model.landmarks import Landmarks, observed_pairs
 from posegraph.model.priors import Priors, anchored_components
+
+if TYPE_CHECKING:  # imported where landmarks are read or solved: a pose graph run does without
+    from posegraph.model.landmarks import Landmarks
 
 __all__ = ["PoseGraph", "EdgeSource", "GraphFacts", "vertex_ranks", "neighbour_pairs", "connected_components", "component_anchors", "held_vertices", "graph_facts"]
 
@@ -222,6 +225,8 @@ def landmark_components(graph: PoseGraph) -> tuple[int, np.ndarray]:
     (landmarks are vertices ``n + l``, joined to the poses that observe them). Components holding a
     pose are numbered first (``count`` counts only those); a landmark no pose observes gets a label
     ``≥ count``."""
+    from posegraph.model.landmarks import observed_pairs
+
     n, landmarks = graph.num_vertices, graph.landmarks
     pose, landmark = observed_pairs(landmarks)
     total, labels = edge_components(

@@ -14,15 +14,17 @@ change to it.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from posegraph.model.graph import PoseGraph
-from posegraph.solve.landmark_terms import LandmarkErrors, landmark_errors, linearize_landmarks
 from posegraph.solve.linearize import EdgeBlocks, linearize
 from posegraph.solve.residuals import edge_errors, squared_norms, weighted_cost
 from posegraph.solve.unary import PriorErrors, linearize_priors, prior_errors, prior_squared_norms
+
+if TYPE_CHECKING:
+    from posegraph.solve.landmark_terms import LandmarkErrors
 
 __all__ = ["Loss", "Evaluation", "Objective"]
 
@@ -76,7 +78,11 @@ class Objective:
         relative, residuals = edge_errors(poses, self.graph)
         priors = prior_errors(poses, self.graph) if self.graph.priors is not None else None
         prior_s = prior_squared_norms(priors, self.graph.priors) if priors is not None else np.zeros(0)
-        landmarks = landmark_errors(self.graph, poses, points) if self.graph.landmarks is not None else None
+        landmarks = None
+        if self.graph.landmarks is not None:  # (imported here: a pose graph's run does without the module)
+            from posegraph.solve.landmark_terms import landmark_errors
+
+            landmarks = landmark_errors(self.graph, poses, points)
         landmark_s = landmarks.squared if landmarks is not None else np.zeros(0)
         if self.loss is None:
             cost = weighted_cost(residuals, self.information) + 0.5 * float(np.sum(prior_s)) + 0.5 * float(np.sum(landmark_s))
@@ -96,6 +102,8 @@ class Objective:
         if evaluation.priors is not None:
             blocks = replace(blocks, priors=linearize_priors(poses, self.graph, evaluation.priors, evaluation.prior_weights))
         if evaluation.landmarks is not None:
+            from posegraph.solve.landmark_terms import linearize_landmarks
+
             landmarks = linearize_landmarks(self.graph, poses, evaluation.points, evaluation.landmark_weights)
             blocks = replace(blocks, landmarks=landmarks)
         return blocks

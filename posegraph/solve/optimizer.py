@@ -52,7 +52,6 @@ from posegraph.solve.result import IterationRecord, OptimizeResult
 from posegraph.solve.sparsity import (
     HessianPattern, PinnedVariables, analyze_pattern, gradient_values, hessian_values, lower_matvec,
 )
-from posegraph.solve.landmark_terms import add_landmark_gradient, add_landmark_hessian, point_variables, retract_points
 from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
 from posegraph.solve.trust_region import (  # noqa: F401  (the termination reasons, re-exported)
     CALLBACK, CONVERGED_ABSOLUTE, CONVERGED_COST, CONVERGED_DECREMENT, CONVERGED_NOTHING, CONVERGED_PREDICTED,
@@ -98,7 +97,12 @@ def analyze(graph: PoseGraph, params: SolverParams | None = None) -> Analysis:
     start = time.perf_counter()
     params = SolverParams() if params is None else params
     held = held_vertices(graph)
-    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim, point_variables(graph))
+    points = None
+    if graph.landmarks is not None:  # (imported here: a pose graph's run does without the module)
+        from posegraph.solve.landmark_terms import point_variables
+
+        points = point_variables(graph)
+    pattern = analyze_pattern(graph.num_vertices, graph.edge_from, graph.edge_to, held, graph.group.dim, points)
     solver = None
     measured = graph.num_edges + (graph.landmarks.num_measurements if graph.landmarks is not None else 0)
     if pattern.num_variables > 0 and measured > 0:
@@ -330,6 +334,8 @@ class _Run:
             if blocks.priors is not None:
                 add_prior_gradient(self.pattern, gradient, blocks.priors)
             if blocks.landmarks is not None:
+                from posegraph.solve.landmark_terms import add_landmark_gradient
+
                 add_landmark_gradient(self.pattern, gradient, blocks.landmarks)
             if self.pinned is not None:
                 self.pinned.zero_gradient(gradient)
@@ -341,7 +347,11 @@ class _Run:
         out = self.poses.copy()
         steps = step[: self.pattern.pose_dimension].reshape(-1, self.pattern.block_size)
         out[self.free] = self.poses[self.free] @ self.graph.group.exp(steps)
-        return out, (None if self.points is None else retract_points(self.pattern, self.points, step))
+        if self.points is None:
+            return out, None
+        from posegraph.solve.landmark_terms import retract_points
+
+        return out, retract_points(self.pattern, self.points, step)
 
     def evaluate_step(self, trial: _Trial) -> None:
         """Poses, cost and gain ratio of the full step ``X ⊕ δ``."""
@@ -404,6 +414,8 @@ class _System:
             if self.blocks.priors is not None:
                 add_prior_hessian(self.run.pattern, data, self.blocks.priors)
             if self.blocks.landmarks is not None:
+                from posegraph.solve.landmark_terms import add_landmark_hessian
+
                 add_landmark_hessian(self.run.pattern, data, self.blocks.landmarks)
         # Assembled: H and g alone are used from here on. The edge blocks (Jacobian factors, adjoints,
         # per-edge gradients: ~600 bytes an SE(3) edge) go before the factorisation needs the memory.
