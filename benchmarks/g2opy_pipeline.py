@@ -22,11 +22,11 @@ _t0 = time.perf_counter()
 
 import argparse  # noqa: E402
 import gzip  # noqa: E402
-import json  # noqa: E402
 import os  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
+from benchmarks.child_report import write_report  # noqa: E402
 
 MEASUREMENT_TAGS = ("EDGE", "ODOMETRY", "LANDMARK", "BR", "POINT3")
 """Tags (prefixes) of the lines that are measurements in g2o, gtsam and iSAM files."""
@@ -124,12 +124,7 @@ def main(argv=None) -> int:
     if not args.chi2_only and not args.output:
         parser.error("-o/--output is required unless --chi2-only")
     seconds: dict = {}
-    report = run(args, seconds)
-    report["seconds"] = seconds
-    report["in_process_seconds"] = time.perf_counter() - _t0
-    with open(args.report, "w") as stream:
-        json.dump(report, stream, indent=1)
-    return 0
+    return write_report(args.report, run(args, seconds), seconds, _t0)
 
 
 if __name__ == "__main__":

@@ -19,10 +19,10 @@ import time
 _t0 = time.perf_counter()
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 
+from benchmarks.child_report import write_report  # noqa: E402
 from benchmarks.g2opy_pipeline import measurement_lines, open_text, plain_copy  # noqa: E402
 
 THREE_D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX_TRACKXYZ", "EDGE3", "VERTEX3", "POINT3")
@@ -116,12 +116,7 @@ def main(argv=None) -> int:
     parser.add_argument("--report", required=True)
     args = parser.parse_args(argv)
     seconds: dict = {}
-    report = run(args, seconds)
-    report["seconds"] = seconds
-    report["in_process_seconds"] = time.perf_counter() - _t0
-    with open(args.report, "w") as stream:
-        json.dump(report, stream, indent=1)
-    return 0
+    return write_report(args.report, run(args, seconds), seconds, _t0)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import sys
 
 from posegraph.cli.common import (
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, UsageError, check_distinct, check_output, display_name,
-    positive_float, positive_int, read_graph, repair_option,
+    positive_float, positive_int, read_graph, repair_option, print_all, stage_or_print,
 )
 
 NAME = "certify"
@@ -98,15 +98,9 @@ def _write_outputs(args, graph, certificate, seconds_read: float) -> None:
         if args.report:
             report = certificate_report(certificate, display_name(args.input), graph)
             report["seconds"] = {"read": seconds_read, **report["seconds"]}
-            text = json_text(report)
-            if args.report == STDIO:
-                printed.append(text)
-            else:
-                outputs.write_text(args.report, text)
+            stage_or_print(outputs, args.report, json_text(report), printed)
         outputs.commit()
-    for text in printed:
-        sys.stdout.write(text)
-    sys.stdout.flush()
+    print_all(printed)
 
 
 def print_certificate(certificate, out) -> None:

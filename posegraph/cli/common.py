@@ -301,6 +301,22 @@ def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_
     return graph, t.seconds
 
 
+def stage_or_print(outputs, path: str, text: str, printed: list) -> None:
+    """``text`` staged for ``path`` in ``outputs`` (:class:`posegraph.io.atomic.StagedOutputs`), or, for
+    ``-``, kept in ``printed`` to go to standard output once the files are committed (:func:`print_all`)."""
+    if path == STDIO:
+        printed.append(text)
+    else:
+        outputs.write_text(path, text)
+
+
+def print_all(printed: list) -> None:
+    """The texts :func:`stage_or_print` kept, on standard output."""
+    for text in printed:
+        sys.stdout.write(text)
+    sys.stdout.flush()
+
+
 def graph_size(graph) -> str:
     """``"6969 vertices, 6968 edges"``, and ``", 151 landmarks, 3640 landmark measurements"`` when it has them."""
     text = f"{graph.num_vertices} vertices, {graph.num_edges} edges"

@@ -6,7 +6,7 @@ import sys
 
 from posegraph.cli.common import (
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, UsageError, check_distinct, check_figure, check_output,
-    display_name, fmt_cost, positive_int, read_graph, repair_option,
+    display_name, fmt_cost, positive_int, print_all, read_graph, repair_option, stage_or_print,
 )
 
 NAME = "replay"
@@ -145,15 +145,9 @@ def _write(args, status, graph, opt, params, result, stats, costs, seconds) -> N
             with outputs.writing(args.output) as tmp:
                 write_g2o(tmp, graph, _in_file_order(graph, opt))
         if args.report:
-            printed_report = json_text(_report(args, graph, opt, params, result, stats, costs, seconds, final))
-            if args.report == STDIO:
-                printed.append(printed_report)
-            else:
-                outputs.write_text(args.report, printed_report)
+            stage_or_print(outputs, args.report, json_text(_report(args, graph, opt, params, result, stats, costs, seconds, final)), printed)
         outputs.commit()
-    for text in printed:
-        sys.stdout.write(text)
-    sys.stdout.flush()
+    print_all(printed)
 
 
 def _in_file_order(graph, opt):
