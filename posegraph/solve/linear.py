@@ -384,8 +384,10 @@ def make_linear_solver(
     (:func:`posegraph.linalg.multigrid.factorisation_fits`).
     """
     if kind == "pcg" and pattern.point_size:
-        raise ValueError("linear_solver='pcg' takes pose graphs only (its multigrid knows blocks of one size); "
-                         "use 'cholmod' or 'scipy' for a graph with landmarks")
+        from posegraph.errors import GraphError
+
+        raise GraphError("linear solver 'pcg' takes pose graphs only (its multigrid knows blocks of one size); "
+                         "use 'cholmod' or 'scipy' (or 'auto') for a graph with landmarks")
     if kind == "auto" and not factor_needed and cholmod_available() and not pattern.point_size and not multigrid.factorisation_fits(
         pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
     ):

@@ -144,3 +144,9 @@ def test_covariances_of_a_landmark_graph_hold_the_landmarks_too(landmark_file, t
 def test_replay_refuses_a_landmark_graph_in_one_line(landmark_file):
     run = run_cli("replay", landmark_file, "-q")
     assert_one_error_line(run, "12 landmarks", "pose graphs only")
+
+
+def test_pcg_on_a_landmark_graph_is_one_line_and_nothing_written(landmark_file, tmp_path):
+    run = run_cli("optimize", landmark_file, "-o", tmp_path / "out.g2o", "--linear-solver", "pcg", "-q")
+    assert_one_error_line(run, "linear solver 'pcg' takes pose graphs only")
+    assert not (tmp_path / "out.g2o").exists()
