@@ -383,9 +383,8 @@ def assemble_landmarks(parsed: ParsedLandmarks, pose_ids: np.ndarray, poses: np.
     fixed[landmarks.find(fix[0][held])[0]] = True
     result = Landmarks(ids=landmarks.ids, positions=positions, observations=tuple(families), fixed=fixed,
                        vertex_tag=LANDMARK_VERTEX_TAG[s])
-    if created.size and not len(vertices.ids):
-        notes.append(f"{path}: the file has no landmark vertex lines: created the {created.size} landmarks its "
-                     "measurements name, each where its first measurement puts it")
+    # (no warning for the created ones: BR, LANDMARK, POINT3 files have no landmark vertex lines by
+    # design; each landmark starts where its first measurement puts it, docs/g2o.md)
     return result, fix[0][~held], fix[1][~held], notes
 
 
