@@ -2,7 +2,7 @@
 
     python -m benchmarks.bench_landmarks [--data DIR] [--repeats N] [--out docs] [--pose-graphs-before REV]
 
-Files: the public landmark files in ``--data`` (default ``/work/data-landmarks``, :data:`DATA_FILES`) and
+Files: the public landmark files in ``--data`` (default ``../data-landmarks`` beside the checkout, :data:`DATA_FILES`) and
 gtsam's bundled ones (:data:`GTSAM_FILES`); an absent file is listed with the reason. Tools, each one
 process per run (interpreter start, imports, read, solve, write):
 
@@ -35,8 +35,11 @@ from pathlib import Path
 from benchmarks import harness
 
 ROOT = harness.ROOT
-DATA_DIR = Path("/work/data-landmarks")
-DATA_FILES = ("victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "isam_manhattanOlson3500.txt",
+DATA_DIR = ROOT.parent / "data-landmarks"
+"""Where the public files are fetched to, beside the checkout (as ``../shared``), never inside it."""
+DATA_FILES = ("victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
+              "world-2000-full.g2o.gz", "world-2000-lownoise-default.g2o.gz", "world-2000-lownoise-full.g2o.gz",
+              "isam_manhattanOlson3500.txt",
               "isam_victoriaPark.txt", "isam_cityTrees10000.txt", "isam_torus2000Points.txt")  # fmt: skip
 GTSAM_FILES = ("victoria_park.txt", "example.graph", "victoriaPark_reduced_1k.g2o", "edge_se3_trackxyz_example.g2o",
                "edge_se3_trackxyz_nonidentity_offset.g2o")  # fmt: skip
