@@ -130,11 +130,13 @@ def landmark_jacobians(group, poses: np.ndarray, points: np.ndarray, family: Obs
     ``J_e_pose`` ``(q, r, d)`` w.r.t. the right perturbation ``X_i·Exp(δ)`` in the group's tangent order
     (None for ``"prior"``), ``J_e_point`` ``(q, r, s)`` w.r.t. ``p + δ``. Formulas: module docstring.
     """
-    e = landmark_residuals(group, poses, points, family)
     if family.kind == "prior":
+        e = landmark_residuals(group, poses, points, family)
         s = e.shape[1]
         return e, None, np.broadcast_to(np.eye(s), (len(e), s, s)).copy()
-    w, y, R, R_O = sensor_points(group, poses, points, family)
+    measurement_size(family.kind, group.space_dim)  # validates the kind
+    w, y, R, R_O = sensor_points(group, poses, points, family)  # once, for the residual and the Jacobians
+    e = _predicted_minus_measured(family.kind, y, np.asarray(family.measurements, dtype=np.float64))
     J_e_w = _measurement_jacobian(family.kind, y)
     if R_O is not None:
         J_e_w = J_e_w @ np.swapaxes(R_O, -1, -2)  # ∂e/∂y · ∂y/∂w

@@ -69,24 +69,26 @@ class LandmarkBlocks:
 
 
 def linearize_landmarks(graph: PoseGraph, poses: np.ndarray, points: np.ndarray, weights: np.ndarray | None = None) -> LandmarkBlocks:
-    """The blocks of every family at ``poses``, ``points`` (module docstring); ``weights`` ``(Σq,)`` or None."""
+    """The blocks of every family at ``poses``, ``points`` (module docstring); ``weights`` ``(Σq,)`` or None.
+
+    With ``J = [A | P]`` ``(q, r, d + s)``, one product ``Jᵀ (w Ω) J`` gives all three blocks of a
+    measurement and ``Jᵀ (w Ω) e`` both gradients."""
     hessian, gradient, start = [], [], 0
-    for family in graph.landmarks.observations:
+    for family in graph.landmarks.observations:  # ≤ 4 families
         e, A, P = landmark_jacobians(graph.group, poses, points, family)
         omega = np.asarray(family.information, dtype=np.float64)
         if weights is not None:
             omega = omega * weights[start : start + family.count, None, None]
         start += family.count
-        omega_p = omega @ P
-        g_point = np.einsum("qrs,qr->qs", omega_p, e)
+        J = P if A is None else np.concatenate([A, P], axis=2)
+        omega_J = omega @ J
+        full = np.swapaxes(J, 1, 2) @ omega_J  # (q, d + s, d + s)
+        gradient.append(np.einsum("qrc,qr->qc", omega_J, e))  # [g_pose, g_point]
         if A is None:
-            hessian.append((np.swapaxes(P, 1, 2) @ omega_p).ravel())
-            gradient.append(g_point)
+            hessian.append(full.ravel())
             continue
-        omega_a = omega @ A
-        blocks = (np.swapaxes(A, 1, 2) @ omega_a, np.swapaxes(P, 1, 2) @ omega_p, np.swapaxes(A, 1, 2) @ omega_p)
-        hessian.append(np.concatenate([b.ravel() for b in blocks]))
-        gradient.append(np.concatenate([np.einsum("qrd,qr->qd", omega_a, e), g_point], axis=1))
+        d = A.shape[2]
+        hessian.append(np.concatenate([full[:, :d, :d].ravel(), full[:, d:, d:].ravel(), full[:, :d, d:].ravel()]))
     return LandmarkBlocks(tuple(hessian), tuple(gradient))
 
 
