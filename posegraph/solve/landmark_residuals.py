@@ -41,7 +41,7 @@ import numpy as np
 
 from posegraph.model.landmarks import Observations, measurement_size
 
-__all__ = ["landmark_residuals", "landmark_jacobians", "landmark_cost", "sensor_points", "wrap_angle"]
+__all__ = ["landmark_residuals", "sensed_residuals", "landmark_jacobians", "landmark_cost", "sensor_points", "wrap_angle"]
 
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
@@ -124,19 +124,28 @@ def _measurement_jacobian(kind: str, y: np.ndarray) -> np.ndarray:
     return np.concatenate([bearing, (y / np.sqrt(rho2)[:, None])[:, None, :]], axis=1)
 
 
-def landmark_jacobians(group, poses: np.ndarray, points: np.ndarray, family: Observations):
+def sensed_residuals(group, poses: np.ndarray, points: np.ndarray, family: Observations):
+    """``(e (q, r), sensed)``: the residuals of one family and what :func:`landmark_jacobians` reuses of
+    them (:func:`sensor_points`' tuple; None for ``"prior"``)."""
+    if family.kind == "prior":
+        return landmark_residuals(group, poses, points, family), None
+    measurement_size(family.kind, group.space_dim)  # validates the kind
+    sensed = sensor_points(group, poses, points, family)
+    return _predicted_minus_measured(family.kind, sensed[1], np.asarray(family.measurements, dtype=np.float64)), sensed
+
+
+def landmark_jacobians(group, poses: np.ndarray, points: np.ndarray, family: Observations, evaluated=None):
     """Residuals ``(q, r)`` and Jacobians of one family: ``(e, J_e_pose, J_e_point)``.
 
     ``J_e_pose`` ``(q, r, d)`` w.r.t. the right perturbation ``X_i·Exp(δ)`` in the group's tangent order
     (None for ``"prior"``), ``J_e_point`` ``(q, r, s)`` w.r.t. ``p + δ``. Formulas: module docstring.
+    ``evaluated``: :func:`sensed_residuals` at the same poses and points, if already computed.
     """
-    if family.kind == "prior":
-        e = landmark_residuals(group, poses, points, family)
+    e, sensed = sensed_residuals(group, poses, points, family) if evaluated is None else evaluated
+    if sensed is None:  # a point prior
         s = e.shape[1]
         return e, None, np.broadcast_to(np.eye(s), (len(e), s, s)).copy()
-    measurement_size(family.kind, group.space_dim)  # validates the kind
-    w, y, R, R_O = sensor_points(group, poses, points, family)  # once, for the residual and the Jacobians
-    e = _predicted_minus_measured(family.kind, y, np.asarray(family.measurements, dtype=np.float64))
+    w, y, R, R_O = sensed
     J_e_w = _measurement_jacobian(family.kind, y)
     if R_O is not None:
         J_e_w = J_e_w @ np.swapaxes(R_O, -1, -2)  # ∂e/∂y · ∂y/∂w

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from posegraph.model.graph import PoseGraph
-from posegraph.solve.landmark_residuals import landmark_jacobians, landmark_residuals
+from posegraph.solve.landmark_residuals import landmark_jacobians, sensed_residuals
 from posegraph.solve.sparsity import HessianPattern, PointFamily, PointVariables
 
 __all__ = [
@@ -48,14 +48,18 @@ class LandmarkErrors:
     """Per family ``(q, r)`` residuals ``e``."""
     squared: np.ndarray
     """``(Σq,)`` ``eᵀΩe`` of every measurement, families one after the other."""
+    sensed: tuple = ()
+    """Per family the points in the sensor frames (:func:`~posegraph.solve.landmark_residuals.sensed_residuals`),
+    which the linearisation at the same estimate reuses."""
 
 
 def landmark_errors(graph: PoseGraph, poses: np.ndarray, points: np.ndarray) -> LandmarkErrors:
     """Residuals and squared norms of every landmark measurement of ``graph`` at ``poses``, ``points``."""
     families = graph.landmarks.observations
-    residuals = tuple(landmark_residuals(graph.group, poses, points, f) for f in families)
+    evaluated = [sensed_residuals(graph.group, poses, points, f) for f in families]
+    residuals = tuple(e for e, _ in evaluated)
     squared = [np.einsum("qi,qij,qj->q", e, np.asarray(f.information, dtype=np.float64), e) for e, f in zip(residuals, families)]
-    return LandmarkErrors(residuals, np.concatenate(squared) if squared else np.zeros(0))
+    return LandmarkErrors(residuals, np.concatenate(squared) if squared else np.zeros(0), tuple(s for _, s in evaluated))
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,14 +72,18 @@ class LandmarkBlocks:
     """Per family ``(q, d + s)`` ``[g_pose, g_point]`` (priors: ``(q, s)``)."""
 
 
-def linearize_landmarks(graph: PoseGraph, poses: np.ndarray, points: np.ndarray, weights: np.ndarray | None = None) -> LandmarkBlocks:
-    """The blocks of every family at ``poses``, ``points`` (module docstring); ``weights`` ``(Σq,)`` or None.
+def linearize_landmarks(
+    graph: PoseGraph, poses: np.ndarray, points: np.ndarray, weights: np.ndarray | None = None, errors: LandmarkErrors | None = None
+) -> LandmarkBlocks:
+    """The blocks of every family at ``poses``, ``points`` (module docstring); ``weights`` ``(Σq,)`` or
+    None; ``errors``: :func:`landmark_errors` there, if already computed (its residuals are reused).
 
     With ``J = [A | P]`` ``(q, r, d + s)``, one product ``Jᵀ (w Ω) J`` gives all three blocks of a
     measurement and ``Jᵀ (w Ω) e`` both gradients."""
     hessian, gradient, start = [], [], 0
-    for family in graph.landmarks.observations:  # ≤ 4 families
-        e, A, P = landmark_jacobians(graph.group, poses, points, family)
+    for number, family in enumerate(graph.landmarks.observations):  # ≤ 4 families
+        evaluated = None if errors is None else (errors.residuals[number], errors.sensed[number])
+        e, A, P = landmark_jacobians(graph.group, poses, points, family, evaluated)
         omega = np.asarray(family.information, dtype=np.float64)
         if weights is not None:
             omega = omega * weights[start : start + family.count, None, None]

@@ -104,6 +104,6 @@ class Objective:
         if evaluation.landmarks is not None:
             from posegraph.solve.landmark_terms import linearize_landmarks
 
-            landmarks = linearize_landmarks(self.graph, poses, evaluation.points, evaluation.landmark_weights)
+            landmarks = linearize_landmarks(self.graph, poses, evaluation.points, evaluation.landmark_weights, evaluation.landmarks)
             blocks = replace(blocks, landmarks=landmarks)
         return blocks
