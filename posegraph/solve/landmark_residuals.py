@@ -89,12 +89,7 @@ def landmark_residuals(group, poses: np.ndarray, points: np.ndarray, family: Obs
 
     ``poses`` ``(n, k, k)`` the graph's poses of ``group``, ``points`` ``(L, s)`` the landmarks.
     """
-    measurement_size(family.kind, group.space_dim)  # validates the kind
-    z = np.asarray(family.measurements, dtype=np.float64)
-    if family.kind == "prior":
-        return np.asarray(points, dtype=np.float64)[family.landmark] - z
-    _, y, _, _ = sensor_points(group, poses, points, family)
-    return _predicted_minus_measured(family.kind, y, z)
+    return sensed_residuals(group, poses, points, family)[0]
 
 
 def _body_jacobian(w: np.ndarray) -> np.ndarray:
@@ -127,9 +122,9 @@ def _measurement_jacobian(kind: str, y: np.ndarray) -> np.ndarray:
 def sensed_residuals(group, poses: np.ndarray, points: np.ndarray, family: Observations):
     """``(e (q, r), sensed)``: the residuals of one family and what :func:`landmark_jacobians` reuses of
     them (:func:`sensor_points`' tuple; None for ``"prior"``)."""
-    if family.kind == "prior":
-        return landmark_residuals(group, poses, points, family), None
     measurement_size(family.kind, group.space_dim)  # validates the kind
+    if family.kind == "prior":
+        return np.asarray(points, dtype=np.float64)[family.landmark] - np.asarray(family.measurements, dtype=np.float64), None
     sensed = sensor_points(group, poses, points, family)
     return _predicted_minus_measured(family.kind, sensed[1], np.asarray(family.measurements, dtype=np.float64)), sensed
 

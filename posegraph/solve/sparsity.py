@@ -158,8 +158,8 @@ def analyze_pattern(
     families = [(variable_of[f.pose] if f.pose is not None else None, point_variable_of[f.point]) for f in points.families]
     binary = [(a, b) for a, b in families if a is not None]
     blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
-    layout = _scalar_layout(blocks, sizes, offsets)
-    system = _System(blocks, layout, offsets, int(layout.indptr[-1]))
+    system = _scalar_layout(blocks, sizes, offsets)
+    layout = system.layout
     hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz)
     gradient_positions = _narrowest(np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1), system.dimension)
     return HessianPattern(
@@ -280,8 +280,9 @@ class _Layout:
     row_start: np.ndarray  # (k,) int64: rows of column c's off-diagonal part above the block's first row
 
 
-def _scalar_layout(blocks: _Blocks, sizes: np.ndarray, offsets: np.ndarray) -> _Layout:
-    """CSC pointers and rows of the lower triangle, for blocks of sizes ``sizes`` ``(p,)``.
+def _scalar_layout(blocks: _Blocks, sizes: np.ndarray, offsets: np.ndarray) -> "_System":
+    """CSC pointers and rows of the lower triangle, for blocks of sizes ``sizes`` ``(p,)``, returned
+    with the positions of the blocks' entries in it (:class:`_System`, its ``layout``).
 
     Variable ``c`` owns rows and columns ``offsets[c] .. offsets[c] + z_c − 1`` (``z_c = sizes[c]``).
     Its column ``offsets[c] + b`` holds ``z_c − b`` rows of the diagonal block, then, block by block
@@ -314,7 +315,7 @@ def _scalar_layout(blocks: _Blocks, sizes: np.ndarray, offsets: np.ndarray) -> _
         which = np.flatnonzero((row_sizes == zr) & (column_sizes == zc))
         a, _ = _grid(zr, zc)
         layout.indices[system.off_slots(which, zr, zc)] = offsets[blocks.row[which]][:, None] + a
-    return layout
+    return system
 
 
 def _distinct(values: np.ndarray) -> list:
