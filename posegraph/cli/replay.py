@@ -96,11 +96,6 @@ def run(args) -> int:
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
-    if graph.landmarks is not None:
-        from posegraph.errors import GraphError
-
-        raise GraphError(f"the graph has {graph.landmarks.count} landmarks: the incremental optimiser takes pose graphs "
-                         "only; posegraph optimize solves landmark graphs", display_name(args.input))
     opt, params = _optimizer(args, graph)
     with Timer() as t:
         result = replay(graph, args.batch_size, optimizer=opt, check_every=args.check_every,
@@ -134,9 +129,12 @@ def _write(args, status, graph, opt, params, result, stats, costs, seconds) -> N
     """``-o`` and ``--report``, staged and renamed into place together (as optimize does)."""
     from posegraph.io.atomic import StagedOutputs, json_text
     from posegraph.io.g2o import format_g2o, write_g2o
+    from posegraph.solve.residuals import cost
 
     ours, best, excess = costs
     final = _final_result(opt, ours)
+    file_cost = float(cost(graph)) if args.report else float("nan")  # at the file's poses and landmarks
+    graph = _estimated_graph(graph, opt)
     printed = []
     with StagedOutputs() as outputs:
         if args.output == STDIO:
@@ -145,7 +143,8 @@ def _write(args, status, graph, opt, params, result, stats, costs, seconds) -> N
             with outputs.writing(args.output) as tmp:
                 write_g2o(tmp, graph, _in_file_order(graph, opt))
         if args.report:
-            stage_or_print(outputs, args.report, json_text(_report(args, graph, opt, params, result, stats, costs, seconds, final)), printed)
+            report = _report(args, graph, opt, params, result, stats, costs, seconds, final, file_cost)
+            stage_or_print(outputs, args.report, json_text(report), printed)
         outputs.commit()
     print_all(printed)
 
@@ -156,15 +155,23 @@ def _in_file_order(graph, opt):
     return opt.poses[[index[v] for v in graph.ids.tolist()]]
 
 
-def _report(args, graph, opt, params, result, stats, costs, seconds, final) -> dict:
+def _estimated_graph(graph, opt):
+    """``graph`` with its landmarks where the optimiser left them (file order); a pose graph as it is."""
+    if graph.landmarks is None:
+        return graph
+    index = {v: k for k, v in enumerate(opt.landmark_ids.tolist())}
+    return graph.with_points(opt.landmark_positions[[index[v] for v in graph.landmarks.ids.tolist()]])
+
+
+def _report(args, graph, opt, params, result, stats, costs, seconds, final, file_cost: float) -> dict:
     from posegraph.analysis.report import optimize_report
-    from posegraph.solve.residuals import cost
 
     from dataclasses import replace
 
-    final = replace(final, poses=_in_file_order(graph, opt))
+    points = None if graph.landmarks is None else graph.landmarks.positions
+    final = replace(final, poses=_in_file_order(graph, opt), points=points)
     report = optimize_report(display_name(args.input), args.output or "", graph, final, init="incremental",
-                             file_cost=float(cost(graph)), seconds=seconds, params=params)
+                             file_cost=file_cost, seconds=seconds, params=params)
     ours, best, excess = costs
     report["incremental"] = {
         "batch_size": args.batch_size, "tolerance": args.tolerance, "verify": args.verify,

@@ -57,8 +57,14 @@ def _edges_of(u: int, i, j, incident: dict, store) -> list[int]:
     return np.flatnonzero((i == u) | (j == u)).tolist()
 
 
-def commit_batch(opt, batch) -> list[int]:
-    """Add ``batch`` (a checked :class:`~posegraph.incremental.optimizer._Batch`) to ``opt``; the touched vertices."""
+def commit_batch(opt, batch) -> tuple[list[int], bool]:
+    """Add ``batch`` (a checked :class:`~posegraph.incremental.optimizer._Batch`) to ``opt``.
+
+    Returns ``(touched, landmark_work)``: the touched vertices, and whether a landmark measurement needs
+    a solve (:func:`posegraph.incremental.landmark_commit.commit_landmarks`).
+    """
+    from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks
+
     store, components = opt._store, opt._components
     touched: list[int] = []
     if batch.ids:
@@ -85,10 +91,13 @@ def commit_batch(opt, batch) -> list[int]:
             touched += vertices.tolist()
             for v in vertices.tolist():
                 touched += components.anchor_by_prior(v, store.fixed.view)
+    released, landmark_work = commit_landmarks(opt, batch) if batch.landmarks or batch.landmark_measurements else ([], False)
+    touched += released
     if batch.removals:
         touched += components.rebuild(store.ids.view, store.fixed.view, store.edge_from.view, store.edge_to.view,
                                       np.flatnonzero(store.prior_vertex_mask()))
-    return list(dict.fromkeys(touched))
+        touched += rejoin_through_landmarks(opt)
+    return list(dict.fromkeys(touched)), landmark_work
 
 
 def _add_edges(opt, batch, new: np.ndarray) -> list[int]:

@@ -31,6 +31,7 @@ import numpy as np
 
 from posegraph.errors import GraphError
 from posegraph.incremental.components import Components
+from posegraph.incremental.landmark_store import LandmarkStore, check_landmark_measurements
 from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
 from posegraph.incremental.store import GraphStore, Rows, check_information, check_poses
 from posegraph.incremental.whole import WholeGraph
@@ -67,9 +68,13 @@ class _Batch:
         self.pose_priors: list[tuple] = []
         self.position_priors: list[tuple] = []
         self.removals: list[np.ndarray] = []
+        self.landmarks: list[tuple] = []
+        self.known_landmarks: set[int] = set()
+        self.landmark_measurements: list[tuple] = []
 
     def empty(self) -> bool:
-        return not (self.ids or self.edges or self.pose_priors or self.position_priors or self.removals)
+        return not (self.ids or self.edges or self.pose_priors or self.position_priors or self.removals
+                    or self.landmarks or self.landmark_measurements)
 
 
 def _ids(values, what: str) -> np.ndarray:
@@ -96,6 +101,7 @@ class IncrementalOptimizer:
         self.params = SolverParams() if params is None else params
         self.wildfire, self.initial_radius, self.full_fraction = wildfire, initial_radius, full_fraction
         self._store = GraphStore(group)
+        self._landmarks = LandmarkStore(group)
         self.whole = bool(whole)
         self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
@@ -128,27 +134,37 @@ class IncrementalOptimizer:
         """``(m,)`` the key of each edge in the graph (what :meth:`add_edges` returned), edge order."""
         return self._store.edge_keys.view.copy()
 
+    @property
+    def landmark_ids(self) -> np.ndarray:
+        """``(L,)`` the landmarks' ids, in the order they were added."""
+        return self._landmarks.ids.view.copy()
+
+    @property
+    def landmark_positions(self) -> np.ndarray:
+        """``(L, s)`` the current estimate of the landmarks, in :attr:`landmark_ids` order (a copy)."""
+        return self._landmarks.positions.view.copy()
+
     def pose(self, vertex_id: int) -> np.ndarray:
         return self._store.poses.view[self._store.indices_of(_ids([vertex_id], "pose"), "pose")[0]].copy()
 
     def cost(self) -> float:
         """The cost at the current estimate (from per-edge terms kept up to date, priors evaluated)."""
         total = 0.5 * float(np.sum(self._terms.view))
-        if self._store.num_priors:
-            total += self._prior_cost()
+        if self._store.num_priors or self._landmarks.count:
+            total += self._unary_cost()
         return total
 
-    def _prior_cost(self) -> float:
-        from posegraph.solve.unary import prior_errors, prior_squared_norms
+    def _unary_cost(self) -> float:
+        """The priors' and landmark measurements' part of the cost (the edges' is kept per edge)."""
+        from posegraph.solve.objective import Objective
 
         store = self._store
         graph = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=np.zeros(0, np.int64),
                           edge_to=np.zeros(0, np.int64), measurements=store.measurements.view[:0],
                           information=store.information.view[:0], fixed=store.fixed.view, group=self.group,
-                          priors=store.priors())
-        s = prior_squared_norms(prior_errors(store.poses.view, graph), graph.priors)
-        loss = self.params.loss
-        return 0.5 * float(np.sum(s if loss is None else loss.rho(s)))
+                          priors=store.priors(), landmarks=self._landmarks.landmarks())
+        points = self._landmarks.positions.view if self._landmarks.count else None
+        return Objective(graph, self.params.loss).evaluate(store.poses.view, points).cost
 
     def graph(self) -> PoseGraph:
         """The graph so far as a :class:`PoseGraph` at the current estimate (write it with ``write_g2o``)."""
@@ -157,6 +173,7 @@ class IncrementalOptimizer:
             ids=s.ids.view.copy(), poses=s.poses.view.copy(), edge_from=s.edge_from.view.copy(),
             edge_to=s.edge_to.view.copy(), measurements=s.measurements.view.copy(),
             information=s.information.view.copy(), fixed=s.fixed.view.copy(), group=self.group, priors=s.priors(),
+            landmarks=self._landmarks.landmarks(),
         )  # fmt: skip
 
     def held(self) -> np.ndarray:
@@ -179,7 +196,7 @@ class IncrementalOptimizer:
             raise GraphError(f"vertex id {int(unique[counts > 1][0])} is given twice in the batch")
         index, known = self._store.index, self._batch.known
         for vertex in ids.tolist():
-            if vertex in index or vertex in known:
+            if vertex in index or vertex in known or self._is_landmark(vertex):
                 raise GraphError(f"vertex id {vertex} is already in the graph")
         self._batch.ids.append(ids)
         self._batch.poses.append(poses.copy())
@@ -239,6 +256,59 @@ class IncrementalOptimizer:
         check_information(w, "position prior", r)
         self._batch.position_priors.append((ids, z.copy(), w.copy()))
 
+    def _is_landmark(self, identifier: int) -> bool:
+        return identifier in self._landmarks.index or identifier in self._batch.known_landmarks
+
+    def add_landmarks(self, ids, positions=None, fixed=None) -> None:
+        """Stage landmarks, points of the graph's space (SE(2): ``s = 2``, SE(3): ``s = 3``).
+
+        ``ids`` ``(a,)``, distinct from every pose id; ``positions`` ``(a, s)``, or None, or NaN rows:
+        a landmark is placed at :meth:`update` from its measurements given the poses
+        (:func:`posegraph.init.landmarks.initialize_landmarks`), its given position kept only when they
+        do not determine it (a lone bearing); ``fixed`` ``(a,)`` bool: ``FIX``, held at its given position.
+        """
+        ids = _ids(ids, "landmarks")
+        s = self.group.space_dim
+        if self.group.name == "SIM3":
+            raise GraphError("landmarks: Sim(3) graphs have no landmarks (SE(2) and SE(3) have)")
+        given = np.full((ids.shape[0], s), np.nan) if positions is None else np.asarray(positions, np.float64)
+        fixed = np.zeros(ids.shape[0], bool) if fixed is None else np.asarray(fixed, dtype=bool).reshape(-1)
+        if given.shape != (ids.shape[0], s) or fixed.shape[0] != ids.shape[0]:
+            raise GraphError(f"landmarks: {ids.shape[0]} ids, positions of shape {given.shape} (want "
+                             f"({ids.shape[0]}, {s})), {fixed.shape[0]} fixed flags")
+        bad = np.flatnonzero(np.isinf(given).any(axis=1) | (fixed & np.isnan(given).any(axis=1)))
+        if bad.size:
+            raise GraphError(f"landmark #{int(bad[0])}: position not finite (a FIX landmark needs its position)")
+        unique, counts = np.unique(ids, return_counts=True)
+        if unique.shape[0] != ids.shape[0]:
+            raise GraphError(f"landmark id {int(unique[counts > 1][0])} is given twice in the batch")
+        for landmark in ids.tolist():
+            if self._is_landmark(landmark) or landmark in self._store.index or landmark in self._batch.known:
+                raise GraphError(f"landmark id {landmark} is already in the graph")
+        self._batch.landmarks.append((ids, given.copy(), fixed.copy()))
+        self._batch.known_landmarks.update(ids.tolist())
+
+    def add_landmark_measurements(self, kind: str, pose_ids, landmark_ids, measurements, information, *,
+                                  offsets=None, tag: str = "") -> None:
+        """Stage measurements of one kind (:data:`posegraph.model.landmarks.KINDS`; residuals as in
+        :mod:`posegraph.model.landmarks`): pose ``pose_ids`` ``(q,)`` (None for ``"prior"``) sees landmark
+        ``landmark_ids`` ``(q,)`` as ``measurements`` ``(q, r)`` with ``information`` ``(q, r, r)``;
+        ``offsets`` ``(q, k, k)``: the sensor in the body frame (``"position"``; identity if None);
+        ``tag``: the file tag written back (``EDGE_SE2_XY``, …)."""
+        landmarks = _ids(landmark_ids, "landmark measurements")
+        z, w, offsets = check_landmark_measurements(self.group, kind, landmarks.shape[0], measurements, information, offsets)
+        if kind == "prior":
+            poses = np.full(landmarks.shape[0], -1, dtype=np.int64)
+        else:
+            poses = _ids(pose_ids, "landmark measurements")
+            if poses.shape != landmarks.shape:
+                raise GraphError(f"landmark measurements: {poses.shape[0]} pose ids, {landmarks.shape[0]} landmark ids")
+            self._check_known(poses, "landmark measurement")
+        for position, landmark in enumerate(landmarks.tolist()):
+            if not self._is_landmark(landmark):
+                raise GraphError(f"landmark measurement #{position}: landmark id {landmark} is not in the graph")
+        self._batch.landmark_measurements.append((kind, str(tag), poses, landmarks, z.copy(), w.copy(), offsets))
+
     def remove_edges(self, keys) -> None:
         """Stage the removal of edges by key (e.g. a loop closure found wrong); applied at :meth:`update`."""
         keys = _ids(keys, "edges to remove")
@@ -254,24 +324,29 @@ class IncrementalOptimizer:
     def update(self) -> UpdateInfo:
         """Put the staged batch into the graph and bring the estimate to the new optimum."""
         from posegraph.incremental.commit import commit_batch
+        from posegraph.incremental.landmark_commit import check_placeable
 
         start = time.perf_counter()
+        check_placeable(self._batch)
         batch, self._batch = self._batch, _Batch(self.group.matrix_size, self.group.dim)
         if batch.empty():
             info = UpdateInfo("none", 0.0, 0, 0, self.cost())
         else:
-            touched = commit_batch(self, batch)
-            kind, vertices, iterations = self._solve(touched)
+            touched, landmark_work = commit_batch(self, batch)
+            kind, vertices, iterations = self._solve(touched, landmark_work)
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
         self.last_update = info
         self._version += 1  # a covariance factorised before this update is stale
         return info
 
-    def _solve(self, touched: list[int]) -> tuple[str, int, int]:
+    def _solve(self, touched: list[int], landmark_work: bool = False) -> tuple[str, int, int]:
         held = self._components.held
         seeds = [v for v in touched if not held[v]]
-        if not seeds:
+        if not seeds and not landmark_work:
             return "exact", 0, 0
+        if self._landmarks.count:  # the held analysis is of poses only: the batch solver, warm, to the tolerance
+            result = self.optimize(relative_tolerance=min(self.tolerance, self.params.relative_tolerance))
+            return "full", int(np.count_nonzero(~self.held())), int(result.iterations)
         kind, vertices, iterations = self._solve_whole() if self.whole else self._solve_region(seeds)
         if self.verify and kind != "full":
             self.optimize(method="gn")
@@ -332,8 +407,12 @@ class IncrementalOptimizer:
         from posegraph.solve import optimize
 
         graph = replace(self.graph(), fixed=self.held())
-        result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params)
+        points = None if graph.landmarks is None else graph.landmarks.positions
+        result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params,
+                          initial_points=points)
         self._store.poses.view[:] = result.poses
+        if points is not None:
+            self._landmarks.positions.view[:] = result.points
         self._version += 1  # the estimate changed: a covariance factorised before is stale
         self._refresh_terms(np.arange(self._store.num_edges))
         return result
@@ -347,6 +426,8 @@ class IncrementalOptimizer:
         held = self.held()
         if held[index]:
             return np.zeros((self.group.dim, self.group.dim))
+        if self._landmarks.count:  # the held analysis is of poses only
+            return self.joint_covariance([vertex_id])
         # the held analysis of the whole graph: one factorisation per update, d solves per call
         return self._whole.marginal(held, index, self._version)
 
@@ -356,4 +437,5 @@ class IncrementalOptimizer:
 
         index = self._store.indices_of(_ids(vertex_ids, "covariance"), "covariance")
         graph = replace(self.graph(), fixed=self.held())
-        return joint_covariance(graph, graph.poses, index)
+        points = None if graph.landmarks is None else graph.landmarks.positions
+        return joint_covariance(graph, graph.poses, index, points=points)

@@ -44,26 +44,54 @@ def time_statistics(seconds) -> dict:
 
 
 def replay_batches(graph, batch_size: int = 1):
-    """``(vertex indices, edge indices, pose-prior indices, position-prior indices)`` per update, in id order."""
+    """Per update, in vertex-id order: ``(vertex indices, edge indices, pose-prior indices, position-prior
+    indices, landmark indices, per landmark family its measurement indices)``.
+
+    A landmark enters with the first pose that sees it (:func:`_landmark_batches`), each measurement
+    with its pose, a point prior with its landmark; a landmark no pose sees enters with the last batch.
+    """
     if batch_size < 1:
         raise ValueError(f"batch size must be at least 1, got {batch_size}")
     n = graph.num_vertices
+    count = (n + batch_size - 1) // batch_size
     order = np.argsort(graph.ids, kind="stable")
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
     batch_of_vertex = rank // batch_size
-    edge_batch = np.maximum(batch_of_vertex[graph.edge_from], batch_of_vertex[graph.edge_to])
-    edges_sorted = np.argsort(edge_batch, kind="stable")
-    edge_bounds = np.searchsorted(edge_batch[edges_sorted], np.arange((n + batch_size - 1) // batch_size + 1))
     priors = graph.priors
     pose_batch = batch_of_vertex[priors.pose_vertex] if priors is not None else np.zeros(0, np.int64)
     position_batch = batch_of_vertex[priors.position_vertex] if priors is not None else np.zeros(0, np.int64)
+    landmark_batch, family_batches = _landmark_batches(graph, batch_of_vertex, count)
+    groups = [_by_batch(b, count) for b in (np.maximum(batch_of_vertex[graph.edge_from], batch_of_vertex[graph.edge_to]),
+                                             pose_batch, position_batch, landmark_batch, *family_batches)]
     for b, start in enumerate(range(0, n, batch_size)):
-        edges = edges_sorted[edge_bounds[b]:edge_bounds[b + 1]]
-        yield order[start:start + batch_size], edges, np.flatnonzero(pose_batch == b), np.flatnonzero(position_batch == b)
+        edges, pose_priors, position_priors, landmarks, *families = (group(b) for group in groups)
+        yield order[start:start + batch_size], edges, pose_priors, position_priors, landmarks, tuple(families)
 
 
-def _stage(opt: IncrementalOptimizer, graph, vertices, edges, pose_priors, position_priors) -> None:
+def _by_batch(batch_of: np.ndarray, count: int):
+    """``take(b)``: the indices ``i`` with ``batch_of[i] == b``, ascending (one sort, no scan per batch)."""
+    ordered = np.argsort(batch_of, kind="stable")
+    bounds = np.searchsorted(batch_of[ordered], np.arange(count + 1))
+    return lambda b: ordered[bounds[b]:bounds[b + 1]]
+
+
+def _landmark_batches(graph, batch_of_vertex: np.ndarray, count: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``(batch of each landmark (L,), per family the batch of each measurement (q,))``: a landmark's is
+    its first sighting's (the last batch if no pose sees it), a measurement's its pose's, a prior's its landmark's."""
+    landmarks = graph.landmarks
+    if landmarks is None:
+        return np.zeros(0, np.int64), []
+    first = np.full(landmarks.count, count - 1, dtype=np.int64)
+    for family in landmarks.observations:
+        if not family.unary:
+            np.minimum.at(first, family.landmark, batch_of_vertex[family.pose])
+    families = [first[f.landmark] if f.unary else batch_of_vertex[f.pose] for f in landmarks.observations]
+    return first, families
+
+
+def _stage(opt: IncrementalOptimizer, graph, vertices, edges, pose_priors, position_priors, landmarks=(),
+           families=()) -> None:
     ids = graph.ids
     opt.add_vertices(ids[vertices], graph.poses[vertices], graph.fixed[vertices])
     if edges.size:
@@ -77,6 +105,22 @@ def _stage(opt: IncrementalOptimizer, graph, vertices, edges, pose_priors, posit
         opt.add_position_priors(ids[priors.position_vertex[position_priors]],
                                 priors.position_measurements[position_priors],
                                 priors.position_information[position_priors])
+    if len(landmarks) or any(len(rows) for rows in families):
+        _stage_landmarks(opt, graph, landmarks, families)
+
+
+def _stage_landmarks(opt: IncrementalOptimizer, graph, landmarks: np.ndarray, families: tuple) -> None:
+    """The new landmarks at their file positions (kept only where their measurements leave them
+    undetermined, or FIX), then each family's measurements of this update."""
+    model, ids = graph.landmarks, graph.ids
+    if len(landmarks):
+        opt.add_landmarks(model.ids[landmarks], model.positions[landmarks], model.fixed[landmarks])
+    for family, rows in zip(model.observations, families):
+        if len(rows):
+            offsets = None if family.offsets is None else family.offsets[rows]
+            opt.add_landmark_measurements(family.kind, None if family.unary else ids[family.pose[rows]],
+                                          model.ids[family.landmark[rows]], family.measurements[rows],
+                                          family.information[rows], offsets=offsets, tag=family.tag)
 
 
 def replay(graph, batch_size: int = 1, *, optimizer: IncrementalOptimizer | None = None, check_every: int | None = None,
@@ -118,9 +162,10 @@ def cost_excess(opt: IncrementalOptimizer, params=None) -> tuple[int, float, flo
     from posegraph.solve.objective import Objective
 
     graph = replace(opt.graph(), fixed=opt.held())
-    ours = Objective(graph, opt.params.loss).evaluate(graph.poses).cost
+    points = None if graph.landmarks is None else graph.landmarks.positions
+    ours = Objective(graph, opt.params.loss).evaluate(graph.poses, points).cost
     params = params or SolverParams(relative_tolerance=1e-12, absolute_tolerance=0.0, max_iterations=200,
                                     loss=opt.params.loss)
-    best = optimize(graph, initial=graph.poses, params=params).final_cost
+    best = optimize(graph, initial=graph.poses, params=params, initial_points=points).final_cost
     best = min(best, ours)
     return graph.num_vertices, ours, best, (ours - best) / max(best, 1e-9)

@@ -141,9 +141,19 @@ def test_covariances_of_a_landmark_graph_hold_the_landmarks_too(landmark_file, t
     assert saved["landmark_covariances"].shape == (12, 2, 2) and np.all(np.linalg.eigvalsh(saved["landmark_covariances"]) > 0)
 
 
-def test_replay_refuses_a_landmark_graph_in_one_line(landmark_file):
-    run = run_cli("replay", landmark_file, "-q")
-    assert_one_error_line(run, "12 landmarks", "pose graphs only")
+def test_replay_solves_a_landmark_graph_and_writes_its_landmarks(landmark_file, tmp_path):
+    out, report = tmp_path / "out.g2o", tmp_path / "report.json"
+    run = run_cli("replay", landmark_file, "-q", "-o", out, "--report", report)
+    assert run.returncode == 0, run.stderr
+    facts = json.loads(report.read_text())
+    expected = optimize(read_g2o(landmark_file))
+    assert facts["final_cost"] <= expected.final_cost * (1 + 1e-8)
+    assert facts["incremental"]["relative_excess"] <= 1e-8
+    assert facts["chi2"] == pytest.approx(2 * facts["final_cost"], rel=1e-9)  # the landmark terms counted
+    assert facts["chi2_by_kind"]["landmark"]["count"] == facts["num_landmark_measurements"] > 0
+    written = read_g2o(out)
+    np.testing.assert_array_equal(written.landmarks.ids, read_g2o(landmark_file).landmarks.ids)
+    np.testing.assert_allclose(written.landmarks.positions, expected.points, rtol=0, atol=1e-5)
 
 
 def test_pcg_on_a_landmark_graph_is_one_line_and_nothing_written(landmark_file, tmp_path):
