@@ -78,7 +78,7 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
         positions = store.edge_positions(np.concatenate(batch.removals))
         touched += store.edge_from.view[positions].tolist() + store.edge_to.view[positions].tolist()
         store.remove_edges(positions)
-        keep = np.ones(opt._terms.n, dtype=bool)
+        keep = np.ones(opt._terms.view.shape[0], dtype=bool)
         keep[positions] = False
         opt._terms.keep(keep)
         opt._whole.reset()  # the scatter positions follow the edge order
@@ -108,7 +108,9 @@ def _add_edges(opt, batch, new: np.ndarray) -> list[int]:
     w = np.concatenate([e[3] for e in batch.edges])
     tree = _place(store, new, i, j, z) if new.size else np.zeros(i.shape[0], dtype=bool)
     store.add_edges(i, j, z, w)
-    opt._terms.extend(np.zeros(i.shape[0]))
+    opt._terms.append_zeros(i.shape[0])  # a tree edge's residual vanishes
+    if not tree.all():  # the others' terms now (a solve refreshes them, but none runs between two held vertices)
+        opt._refresh_terms(store.num_edges - i.shape[0] + np.flatnonzero(~tree))
     touched = np.concatenate([i[~tree], j[~tree]]).tolist()
     ids, fixed = store.ids.view, store.fixed.view
     released = []

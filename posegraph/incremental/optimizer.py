@@ -33,7 +33,7 @@ from posegraph.errors import GraphError
 from posegraph.incremental.components import Components
 from posegraph.incremental.landmark_store import LandmarkStore, check_landmark_measurements
 from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
-from posegraph.incremental.store import GraphStore, Rows, check_information, check_poses
+from posegraph.incremental.store import EdgeTerms, GraphStore, check_information, check_poses
 from posegraph.incremental.whole import WholeGraph
 from posegraph.lie.group import SE3
 from posegraph.model.graph import PoseGraph
@@ -105,7 +105,7 @@ class IncrementalOptimizer:
         self.whole = bool(whole)
         self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
-        self._terms = Rows(())  # per edge: s = eᵀΩe, or ρ(s) with a loss
+        self._terms = EdgeTerms()
         self._batch = _Batch(group.matrix_size, group.dim)
         self.last_update: UpdateInfo | None = None
         self._version = 0
@@ -149,7 +149,7 @@ class IncrementalOptimizer:
 
     def cost(self) -> float:
         """The cost at the current estimate (from per-edge terms kept up to date, priors evaluated)."""
-        total = 0.5 * float(np.sum(self._terms.view))
+        total = 0.5 * self._terms.total()
         if self._store.num_priors or self._landmarks.count:
             total += self._unary_cost()
         return total
@@ -361,7 +361,7 @@ class IncrementalOptimizer:
         if not ok:
             self.optimize()
             return "full", int(np.count_nonzero(~held)), iterations + 1
-        self._terms.view[:] = terms
+        self._terms.set(slice(None), terms)
         return "whole", int(np.count_nonzero(~held)), iterations
 
     def _solve_region(self, seeds: list[int]) -> tuple[str, int, int]:
@@ -399,7 +399,7 @@ class IncrementalOptimizer:
                         information=store.information.view[edges], fixed=store.fixed.view, group=self.group)
         s = squared_norms(edge_errors(store.poses.view, sub)[1], sub.information)
         loss = self.params.loss
-        self._terms.view[edges] = s if loss is None else loss.rho(s)
+        self._terms.set(edges, s if loss is None else loss.rho(s))
 
     def optimize(self, **changes):
         """A batch solve of the whole graph from the current estimate (:func:`posegraph.solve.optimize`

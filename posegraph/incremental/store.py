@@ -17,7 +17,7 @@ import numpy as np
 from posegraph.errors import GraphError
 from posegraph.model.priors import Priors
 
-__all__ = ["Rows", "GraphStore", "check_information", "check_poses"]
+__all__ = ["Rows", "EdgeTerms", "GraphStore", "check_information", "check_poses"]
 
 
 class Rows:
@@ -46,6 +46,40 @@ class Rows:
         kept = self.view[mask]
         self.data[: kept.shape[0]] = kept
         self.n = kept.shape[0]
+
+
+class EdgeTerms:
+    """Each edge's cost term (``s = eᵀΩe``, or ``ρ(s)`` with a loss), and their sum kept between changes.
+
+    :meth:`total` re-adds the terms only after they changed: an odometry update appends zeros (its edges'
+    residuals vanish by construction) and leaves the sum as it was, so the cost after it costs O(1),
+    not O(edges).
+    """
+
+    def __init__(self):
+        self.rows = Rows(())
+        self._sum: float | None = 0.0
+
+    @property
+    def view(self) -> np.ndarray:
+        return self.rows.view
+
+    def append_zeros(self, count: int) -> None:
+        self.rows.extend(np.zeros(count))
+
+    def keep(self, mask: np.ndarray) -> None:
+        self.rows.keep(mask)
+        self._sum = None
+
+    def set(self, positions, values) -> None:
+        """``terms[positions] = values`` (``positions`` a slice or an index array)."""
+        self.rows.view[positions] = values
+        self._sum = None
+
+    def total(self) -> float:
+        if self._sum is None:
+            self._sum = float(np.sum(self.rows.view))
+        return self._sum
 
 
 def check_information(information: np.ndarray, what: str, dim: int) -> None:

@@ -215,3 +215,32 @@ def test_verify_mode_is_exact():
         opt.update()
     _, ours, best, excess = cost_excess(opt)
     assert ours - best <= 1e-9 * max(best, 1.0)
+
+
+def test_an_edge_between_two_held_vertices_counts_in_the_cost_without_a_solve():
+    from posegraph.solve.residuals import cost
+
+    opt = IncrementalOptimizer(SE2)
+    opt.add_vertices([0, 1], np.stack([np.eye(3), SE2.exp(np.array([1.0, 0.0, 0.0]))]), [True, True])
+    opt.add_edges([0], [1], SE2.exp(np.array([[0.5, 0.0, 0.0]])), np.eye(3)[None])
+    assert opt.update().kind == "exact"
+    assert opt.cost() == pytest.approx(cost(opt.graph()), rel=1e-12) and opt.cost() > 0.1
+
+
+def test_a_whole_graph_in_one_update_predicts_blocks_for_its_last_loop_closures_only():
+    from posegraph.incremental.whole import PREDICT, PREDICTED_LOOPS
+
+    group, rng = SE2, np.random.default_rng(5)
+    n = 400
+    truth = _truth(rng, group, n)
+    i = np.r_[np.arange(n - 1), rng.integers(0, n - 50, 300)]
+    j = np.r_[np.arange(1, n), rng.integers(n - 40, n, 300)]
+    opt = IncrementalOptimizer(group)
+    opt.add_vertices(np.arange(n), truth)
+    opt.add_edges(i, j, _noisy(rng, group, group.between(truth[i], truth[j])), _information(group, i.shape[0]))
+    opt.update()
+    pattern = opt._whole.pattern
+    blocks = pattern.block_indptr[-1] - pattern.num_variables  # stored off-diagonal blocks
+    cone = sum(4 * s + 5 for s in range(1, PREDICT + 1))
+    assert blocks <= i.shape[0] + pattern.num_vertices + PREDICTED_LOOPS * cone
+    assert cost_excess(opt)[3] <= TOLERANCE
