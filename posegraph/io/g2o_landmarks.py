@@ -21,8 +21,11 @@ line                          kind             noise entries
 ============================  ===============  =========================================================
 
 ``i`` is a pose id, ``l`` a landmark id. g2o files define every landmark by a vertex line, in the one
-id space of all vertices: a landmark id equal to a pose id, or a measurement naming an undefined
-vertex, is refused. ``BR``, ``LANDMARK2``, ``LANDMARK`` and ``POINT3`` come from files without landmark
+id space of all vertices; a measurement naming an undefined vertex is refused. Files whose landmark
+vertex ids meet the poses' ids (gtsam's ``known_landmark_localization_*.g2o``: g2o cannot load them)
+are read as gtsam's ``readG2o`` reads every file, the landmarks in their own id space (``L(l)``): all
+landmark ids are shifted by a power of ten above the largest id, with one warning, the measurement
+lines then written from their values with the shifted ids (a file g2o loads). ``BR``, ``LANDMARK2``, ``LANDMARK`` and ``POINT3`` come from files without landmark
 vertex lines whose landmark ids are their own id space (gtsam's ``L(l)``): a landmark they name that
 no vertex line defines is created, placed by its first measurement; when such ids meet pose ids, all
 created ids are shifted by a power of ten above the largest pose id (one warning says by how much).
@@ -240,8 +243,8 @@ def _lookup(sorted_ids: np.ndarray, order: np.ndarray, wanted: np.ndarray) -> tu
     return order[pos], sorted_ids[pos] == wanted
 
 
-def _vertex_errors(vertices: _Vertices, pose_ids: np.ndarray, space_dim: int, path: str) -> list:
-    """A duplicate landmark id, and a landmark id that is a pose's id, each on its line (or None)."""
+def _vertex_errors(vertices: _Vertices, space_dim: int, path: str) -> list:
+    """A duplicate landmark id, on its line."""
     tag = LANDMARK_VERTEX_TAG[space_dim]
     order = np.argsort(vertices.ids, kind="stable")
     sorted_ids = vertices.ids[order]
@@ -251,12 +254,24 @@ def _vertex_errors(vertices: _Vertices, pose_ids: np.ndarray, space_dim: int, pa
         r = repeat[np.argmin(order[repeat])]
         errors.append(GraphError(f"duplicate {tag} id {sorted_ids[r]} (first defined on line "
                                  f"{int(vertices.numbers[order[r - 1]])})", path, int(vertices.numbers[order[r]])))
-    clash = np.flatnonzero(np.isin(vertices.ids, pose_ids))
-    if clash.size:
-        k = clash[0]
-        errors.append(GraphError(f"{tag} id {vertices.ids[k]} is also a pose's id: g2o's vertices share one id space",
-                                 path, int(vertices.numbers[k])))
     return errors
+
+
+def _own_space_shift(parsed: ParsedLandmarks, pose_ids: np.ndarray, path: str) -> tuple[int, list]:
+    """``(shift, notes)``: 0 when the landmark vertex ids are apart from the poses' (g2o's one id space), else
+    the power of ten above every id that all landmark ids get (gtsam's ``L(l)``: module docstring)."""
+    vertices = parsed.vertices
+    clash = np.flatnonzero(np.isin(vertices.ids, pose_ids))
+    if not clash.size:
+        return 0, []
+    named = [f.ids[:, 0 if MEASUREMENT_TAGS[f.tag].kind == "prior" else 1] for f in parsed.families]
+    largest = int(np.max(np.concatenate([pose_ids, vertices.ids, *named])))
+    shift = 10 ** len(str(largest))
+    tag = LANDMARK_VERTEX_TAG[parsed.space_dim]
+    note = (f"{path}:{int(vertices.numbers[clash[0]])}: {tag} id {int(vertices.ids[clash[0]])} is also a pose's id "
+            f"({clash.size} such): read as gtsam reads it, the landmarks in their own id space, each given the id "
+            f"{shift} + its file id (the output names them so)")
+    return shift, [note]
 
 
 def _created_ids(parsed: ParsedLandmarks, pose_ids: np.ndarray, path: str) -> tuple[np.ndarray, int, list]:
@@ -322,12 +337,16 @@ def _offset_matrices(family: _Family, offsets: dict, path: str) -> tuple[np.ndar
     return out, None
 
 
-def _resolve(family: _Family, landmarks: _Index, poses: _Index, shift: int, vertex_ids: np.ndarray, names: tuple,
+def _resolve(family: _Family, landmarks: _Index, poses: _Index, shifts: tuple, vertex_ids: np.ndarray, names: tuple,
              path: str) -> tuple[np.ndarray, np.ndarray, list]:  # fmt: skip
-    """``(pose indices (−1 for priors), landmark indices, [errors])`` of one family's measurements."""
+    """``(pose indices (−1 for priors), landmark indices, [errors])`` of one family's measurements;
+    ``shifts`` = ``(own space, created)``: added to every landmark id, and to those no vertex line defines."""
     spec = MEASUREMENT_TAGS[family.tag]
     named = family.ids[:, 0 if spec.kind == "prior" else 1]
-    if spec.own_ids and shift:
+    own, shift = shifts
+    if own:
+        named = named + own
+    elif spec.own_ids and shift:
         named = np.where(np.isin(named, vertex_ids), named, named + shift)
     landmark, found = landmarks.find(named)
     errors = []
@@ -357,14 +376,16 @@ def assemble_landmarks(parsed: ParsedLandmarks, pose_ids: np.ndarray, poses: np.
     from posegraph.model.landmarks import Landmarks, Observations  # here: a pose graph never builds them
 
     s, vertices = parsed.space_dim, parsed.vertices
-    raise_first(_vertex_errors(vertices, pose_ids, s, path))
-    created, shift, notes = _created_ids(parsed, pose_ids, path)
-    landmarks, pose_index = _Index.of(np.concatenate([vertices.ids, created + shift])), _Index.of(pose_ids)
+    raise_first(_vertex_errors(vertices, s, path))
+    own, notes = _own_space_shift(parsed, pose_ids, path)
+    created, shift, created_notes = _created_ids(parsed, pose_ids if not own else np.zeros(0, np.int64), path)
+    shift, notes = (own, notes) if own else (shift, created_notes)
+    landmarks, pose_index = _Index.of(np.concatenate([vertices.ids + own, created + shift])), _Index.of(pose_ids)
     names = (pose_names, f"{LANDMARK_VERTEX_TAG[s]} line")
     families, errors, placed = [], [], []
     for family in parsed.families:
         spec = MEASUREMENT_TAGS[family.tag]
-        pose, landmark, resolve_errors = _resolve(family, landmarks, pose_index, shift, vertices.ids, names, path)
+        pose, landmark, resolve_errors = _resolve(family, landmarks, pose_index, (own, shift), vertices.ids, names, path)
         offset_matrices, offset_error = _offset_matrices(family, offsets, path)
         errors += resolve_errors + [offset_error]
         if resolve_errors or offset_error is not None:
@@ -372,15 +393,18 @@ def assemble_landmarks(parsed: ParsedLandmarks, pose_ids: np.ndarray, poses: np.
         families.append(Observations(
             kind=spec.kind, pose=pose, landmark=landmark, measurements=family.z.copy(), information=family.information,
             offsets=offset_matrices, tag=family.tag, lines=family.numbers.copy(),
-            offset_ids=family.ids[:, 2].copy() if offset_matrices is not None else None, text=list(family.rests),
+            offset_ids=family.ids[:, 2].copy() if offset_matrices is not None else None,
+            text=None if own else list(family.rests),  # shifted ids: the lines as read would name the old ones
         ))  # fmt: skip
         if spec.own_ids:
             placed.append((family.numbers, landmark, _placed(family, spec, poses[np.maximum(pose, 0)], offset_matrices)))
     raise_first(errors)
     positions = np.concatenate([vertices.positions, _first_placed(placed, len(vertices.ids), len(created), s)])
-    held = np.isin(fix[0], landmarks.ids)
+    # FIX names a pose where an id is both (g2o's FIX is of poses); with a shift, a landmark by its file id
+    named = np.where(np.isin(fix[0], pose_ids), -1, fix[0] + own) if own else fix[0]
+    held = np.isin(named, landmarks.ids)
     fixed = np.zeros(len(landmarks.ids), bool)
-    fixed[landmarks.find(fix[0][held])[0]] = True
+    fixed[landmarks.find(named[held])[0]] = True
     result = Landmarks(ids=landmarks.ids, positions=positions, observations=tuple(families), fixed=fixed,
                        vertex_tag=LANDMARK_VERTEX_TAG[s])
     # (no warning for the created ones: BR, LANDMARK, POINT3 files have no landmark vertex lines by

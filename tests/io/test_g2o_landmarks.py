@@ -3,6 +3,7 @@ refused when they are most of the file (file:line), as before."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from posegraph.errors import GraphError
@@ -51,12 +52,19 @@ def test_gtsam_landmark_files_are_read(gtsam_example_file, name, poses, landmark
     assert [(f.tag, f.count) for f in graph.landmarks.observations] == [(tag, count)]
 
 
-def test_gtsam_file_whose_landmark_ids_are_pose_ids_is_refused_on_its_line(gtsam_example_file):
-    """gtsam's known_landmark_localization files give landmarks the ids of poses (gtsam keys them L(id)); g2o's
-    vertices share one id space, and so do ours."""
-    with pytest.raises(GraphError, match="one id space") as caught:
-        read_g2o(gtsam_example_file("known_landmark_localization_20.g2o"))
-    assert caught.value.line is not None
+def test_gtsam_file_whose_landmark_ids_are_pose_ids_is_read_as_gtsam_reads_it(gtsam_example_file):
+    """gtsam's known_landmark_localization files give landmarks the ids of poses (gtsam keys them L(id)); g2o
+    cannot load them. Read in their own id space (ids + 100 here), every measurement on its landmark."""
+    path = gtsam_example_file("known_landmark_localization_20.g2o")
+    graph, messages = read_with_warnings(path)
+    assert graph.num_vertices == 20 and graph.landmarks.ids.tolist() == [100, 101, 102, 103]
+    assert len(messages) == 1 and "own id space" in messages[0] and ":21:" in messages[0]
+    (track,) = graph.landmarks.observations
+    assert track.count == 80 and track.text is None
+    lines = [line.split() for line in open(path) if line.startswith("EDGE_SE3_TRACKXYZ")]
+    np.testing.assert_array_equal(track.pose, [int(f[1]) for f in lines])
+    np.testing.assert_array_equal(graph.landmarks.ids[track.landmark], [100 + int(f[2]) for f in lines])
+    np.testing.assert_allclose(track.measurements, [[float(x) for x in f[4:7]] for f in lines])
 
 
 def test_reading_a_landmark_graph_as_a_trajectory_reads_its_landmarks_too(text_file):

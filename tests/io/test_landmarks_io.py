@@ -133,7 +133,6 @@ def test_interleaved_file_reads_back_to_the_same_graph(text_file):
 @pytest.mark.parametrize("text, error, line, reason", [
     (POSES_2D + "VERTEX_XY 10 0 0\nEDGE_SE2_XY 0 12 1 1 1 0 1\n", GraphError, 5, "landmark 12, which has no VERTEX_XY"),
     (POSES_2D + "VERTEX_XY 10 0 0\nEDGE_SE2_XY 5 10 1 1 1 0 1\n", GraphError, 5, "pose 5, which has no VERTEX_SE2"),
-    (POSES_2D + "VERTEX_XY 1 0 0\n", GraphError, 4, "also a pose's id"),
     (POSES_2D + "VERTEX_XY 10 0 0\nEDGE_SE2_XY 0 10 1 1 1 2 1\n", G2oFormatError, 5, "not positive semi-definite"),
     (POSES_2D + "VERTEX_XY 10 0 0\nEDGE_SE2_XY 0 10 1 1 0 0 0\n", G2oFormatError, 5, "all zero"),
     (POSES_3D + "VERTEX_XY 10 0 0\n", G2oFormatError, 4, "VERTEX_XY in a 3D file"),
@@ -146,6 +145,24 @@ def test_errors_name_file_and_line(text_file, text, error, line, reason):
     with pytest.raises(error) as caught:
         read_g2o(path)
     assert caught.value.path == str(path) and caught.value.line == line and reason in str(caught.value)
+
+
+def test_landmark_ids_that_are_pose_ids_are_their_own_id_space(text_file):
+    """gtsam's reading (``L(l)``): every landmark id shifted by a power of ten, FIX naming a pose where ids meet."""
+    text = POSES_2D + ("VERTEX_XY 1 2 3\nVERTEX_XY 7 -1 4\nEDGE_SE2_XY 0 1 2 3 5 1 7\nEDGE_SE2_XY 1 7 -2 4.5 3 0 3\n"
+                       "EDGE_SE2_XY 1 1 1 2 3 0 3\nFIX 1\nFIX 7\n")
+    graph, messages = read(text_file, text)
+    assert graph.landmarks.ids.tolist() == [11, 17] and graph.fixed.tolist() == [False, True]
+    assert graph.landmarks.fixed.tolist() == [False, True]  # FIX 1 is the pose's; 7 is only a landmark's
+    assert len(messages) == 1 and "VERTEX_XY id 1 is also a pose's id" in messages[0] and "10 + its file id" in messages[0]
+    xy = family(graph, "EDGE_SE2_XY")
+    assert xy.pose.tolist() == [0, 1, 1] and xy.landmark.tolist() == [0, 1, 0]
+    np.testing.assert_array_equal(graph.landmarks.positions, [[2, 3], [-1, 4]])
+    written = format_g2o(graph)
+    assert "VERTEX_XY 11 2.0 3.0\n" in written and "EDGE_SE2_XY 0 11 2.0 3.0 5.0 1.0 7.0\n" in written
+    back, again = read(text_file, written)
+    assert not again and back.landmarks.ids.tolist() == [11, 17]
+    np.testing.assert_array_equal(family(back, "EDGE_SE2_XY").landmark, xy.landmark)
 
 
 def test_xyz_prior_with_parameter_minus_one_is_accepted_and_written_back(text_file):
