@@ -344,8 +344,8 @@ class IncrementalOptimizer:
         seeds = [v for v in touched if not held[v]]
         if not seeds and not landmark_work:
             return "exact", 0, 0
-        if self._landmarks.count:  # the held analysis is of poses only: the batch solver, warm, to the tolerance
-            result = self.optimize(relative_tolerance=min(self.tolerance, self.params.relative_tolerance))
+        if self._landmarks.count:  # the held analysis is of poses only
+            result = self._batch_solve()
             return "full", int(np.count_nonzero(~self.held())), int(result.iterations)
         kind, vertices, iterations = self._solve_whole() if self.whole else self._solve_region(seeds)
         if self.verify and kind != "full":
@@ -359,10 +359,14 @@ class IncrementalOptimizer:
         held = self._components.held_mask()
         ok, iterations, terms = self._whole.solve(held, self.tolerance)
         if not ok:
-            self.optimize()
-            return "full", int(np.count_nonzero(~held)), iterations + 1
+            result = self._batch_solve()
+            return "full", int(np.count_nonzero(~held)), iterations + int(result.iterations)
         self._terms.set(slice(None), terms)
         return "whole", int(np.count_nonzero(~held)), iterations
+
+    def _batch_solve(self):
+        """The batch solver from the current estimate, its relative tolerance at most :attr:`tolerance`."""
+        return self.optimize(relative_tolerance=min(self.tolerance, self.params.relative_tolerance))
 
     def _solve_region(self, seeds: list[int]) -> tuple[str, int, int]:
         store, held = self._store, self._components.held

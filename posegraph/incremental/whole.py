@@ -212,7 +212,8 @@ class WholeGraph:
 
         Returns ``(ok, iterations, terms (m,))`` with ``terms`` each edge's ``eᵀΩe`` (``ρ`` of it with a
         loss) at the final poses. ``ok`` False: a fresh step raised the cost or H was not positive
-        definite; the poses are then as before the call.
+        definite (the poses are then as before the call), or ``max_iterations`` steps did not reach the
+        tolerance (the poses are then where they led, the cost lower than before: a start for the batch solver).
         """
         if not self._ready(held):
             self._analyse(held)
@@ -251,6 +252,8 @@ class WholeGraph:
                 continue
             fresh = not fresh and decrement > CHORD_RATE * previous
             previous, evaluation = decrement, trial
+        else:
+            return False, iteration, np.zeros(0)  # not within the tolerance yet
         return True, iteration, self._terms(objective, evaluation)
 
     def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):

@@ -244,3 +244,35 @@ def test_a_whole_graph_in_one_update_predicts_blocks_for_its_last_loop_closures_
     cone = sum(4 * s + 5 for s in range(1, PREDICT + 1))
     assert blocks <= i.shape[0] + pattern.num_vertices + PREDICTED_LOOPS * cone
     assert cost_excess(opt)[3] <= TOLERANCE
+
+
+def _drifting_route(n=300, seed=9):
+    """An SE(2) odometry route with rotational drift, as an optimiser, and a loop closure first → last (true)."""
+    group, rng = SE2, np.random.default_rng(seed)
+    truth = _truth(rng, group, n)
+    opt = IncrementalOptimizer(group)
+    opt.add_vertices(np.arange(n), truth)
+    z = _noisy(rng, group, group.between(truth[:-1], truth[1:]), sigma=0.05)
+    opt.add_edges(np.arange(n - 1), np.arange(1, n), z, _information(group, n - 1))
+    opt.update()
+    return opt, group.between(truth[:1], truth[-1:])
+
+
+def test_gauss_newton_that_runs_out_of_steps_says_so_and_keeps_its_progress():
+    from posegraph.incremental.commit import commit_batch
+    from posegraph.solve.residuals import cost
+
+    opt, z = _drifting_route()
+    opt.add_edges([0], [opt.num_vertices - 1], z, _information(SE2, 1))
+    batch, opt._batch = opt._batch, None
+    commit_batch(opt, batch)  # the loop closure in the graph, no solve yet
+    start = cost(opt.graph())
+    ok, iterations, _ = opt._whole.solve(opt.held(), 1e-12, max_iterations=1)
+    assert not ok and iterations == 1 and cost(opt.graph()) < start
+
+
+def test_a_long_loop_closure_ends_at_the_batch_optimum():
+    opt, z = _drifting_route()
+    opt.add_edges([0], [opt.num_vertices - 1], z, _information(SE2, 1))
+    info = opt.update()
+    assert info.kind in ("whole", "full") and cost_excess(opt)[3] <= TOLERANCE
