@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "datasets"
 SESYNC = Path("/work/data-sesync")
 EXTRA = Path("/work/data-incr")
-"""Graphs fetched for this benchmark, outside the repository (w10000)."""
+"""Graphs fetched for this benchmark, outside the repository."""
 GRAPHS = ("intel", "manhattan", "city10000", "w10000", "sphere2500", "parking-garage", "torus3D", "synthetic100k")
 TARGET_RATIO = 0.5
 COST_FLOOR = 1e-9
@@ -45,7 +45,18 @@ def graph_path(name: str) -> Path | None:
         path = folder / f"{name}.g2o"
         if path.exists():
             return path
-    return None
+    return _gtsam_example(f"{name}.graph")
+
+
+def _gtsam_example(filename: str) -> Path | None:
+    """A file of the data gtsam's wheel bundles (TORO ``w10000.graph``), or None."""
+    try:
+        import gtsam
+
+        path = Path(gtsam.findExampleDataFile("example.graph")).parent / filename
+    except (ImportError, RuntimeError):
+        return None
+    return path if path.exists() else None
 
 
 def load(name: str):
@@ -58,7 +69,7 @@ def load(name: str):
         return generate("manhattan", 100_000, seed=0).graph
     path = graph_path(name)
     if path is None:
-        raise FileNotFoundError(f"{name}.g2o in neither {SHARED} nor {SESYNC}")
+        raise FileNotFoundError(f"{name}.g2o in neither {SHARED} nor {SESYNC}, nor {name}.graph in gtsam's data")
     return read_g2o(path, repair_information=True)
 
 
