@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.errors import GraphError
-from posegraph.incremental.store import Rows, check_information, check_poses
+from posegraph.incremental.store import Rows, check_information, check_poses, indices_in
 from posegraph.model.landmarks import KINDS, Landmarks, Observations, measurement_size
 
 __all__ = ["LandmarkStore", "LandmarkFamily", "check_landmark_measurements"]
@@ -85,13 +85,8 @@ class LandmarkStore:
         return self.families[key]
 
     def indices_of(self, ids: np.ndarray, what: str) -> np.ndarray:
-        out = np.empty(len(ids), dtype=np.int64)
-        for position, landmark in enumerate(ids.tolist()):
-            index = self.index.get(landmark)
-            if index is None:
-                raise GraphError(f"{what} #{position}: landmark id {landmark} is not in the graph")
-            out[position] = index
-        return out
+        """Indices of landmark ids (``GraphError`` naming the first unknown one)."""
+        return indices_in(self.index, ids, what, "landmark")
 
     def landmarks(self) -> Landmarks | None:
         """The landmarks so far as the model holds them (copies); None when there are none."""

@@ -17,7 +17,7 @@ import numpy as np
 from posegraph.errors import GraphError
 from posegraph.model.priors import Priors
 
-__all__ = ["Rows", "EdgeTerms", "GraphStore", "check_information", "check_poses"]
+__all__ = ["Rows", "EdgeTerms", "GraphStore", "check_information", "check_poses", "indices_in"]
 
 
 class Rows:
@@ -80,6 +80,18 @@ class EdgeTerms:
         if self._sum is None:
             self._sum = float(np.sum(self.rows.view))
         return self._sum
+
+
+def indices_in(index: dict, ids, what: str, noun: str) -> np.ndarray:
+    """``(a,)`` the indices ``index`` maps ``ids`` to (``GraphError`` naming the first unknown one: ``what #k:
+    <noun> id … is not in the graph``)."""
+    out = np.empty(len(ids), dtype=np.int64)
+    for position, identifier in enumerate(ids.tolist()):
+        found = index.get(identifier)
+        if found is None:
+            raise GraphError(f"{what} #{position}: {noun} id {identifier} is not in the graph")
+        out[position] = found
+    return out
 
 
 def check_information(information: np.ndarray, what: str, dim: int) -> None:
@@ -154,13 +166,7 @@ class GraphStore:
 
     def indices_of(self, ids, what: str) -> np.ndarray:
         """Indices of vertex ids (``GraphError`` naming the first unknown one)."""
-        out = np.empty(len(ids), dtype=np.int64)
-        for position, vertex in enumerate(ids.tolist()):
-            index = self.index.get(vertex)
-            if index is None:
-                raise GraphError(f"{what} #{position}: vertex id {vertex} is not in the graph")
-            out[position] = index
-        return out
+        return indices_in(self.index, ids, what, "vertex")
 
     def add_vertices(self, ids: np.ndarray, poses: np.ndarray, fixed: np.ndarray) -> np.ndarray:
         """Append vertices (checked by the caller); their indices."""
