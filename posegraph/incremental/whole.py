@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky
+from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
+from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.objective import Objective
 from posegraph.solve.residuals import squared_norms
@@ -51,6 +52,12 @@ BACKTRACK = 6
 
 CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
+
+MAX_LEFT_OUT = 2
+"""Edges whose block is outside the held pattern that are left out of the factorised matrix and put
+back by a low-rank correction (:mod:`posegraph.incremental.lowrank`) before a new analysis is made. The
+correction costs d solves per left-out edge at every numeric factorisation (cvxopt's CHOLMOD solves
+one right-hand side at a time), so only a few are worth it against one analysis."""
 
 
 def _off_keys(pattern) -> tuple[np.ndarray, np.ndarray]:
@@ -127,16 +134,20 @@ class WholeGraph:
         d = store.group.dim
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
-        self.pattern = self.factor = None
+        self.pattern = self.factor = self.correction = None
+        self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.analyses = self.factorizations = 0
 
     def reset(self) -> None:
-        self.pattern = self.factor = None
+        self.pattern = self.factor = self.correction = None
         self.hessian_at.n = self.gradient_at.n = 0
+        self.left_out = np.zeros(0, dtype=np.int64)
 
     def _ready(self, held: np.ndarray) -> bool:
-        """Scatter positions for every edge; False when the analysis no longer covers the graph."""
+        """Scatter positions for every edge; False when the analysis no longer covers the graph: the
+        capacity or the held set changed, or more than MAX_LEFT_OUT edges would have their block outside
+        the pattern (those are left out of H: :mod:`~posegraph.incremental.lowrank`)."""
         store, n = self.store, self.store.num_vertices
         if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
             return False
@@ -145,8 +156,11 @@ class WholeGraph:
             variable = self.pattern.variable_of
             ci, cj = variable[store.edge_from.view[done:]], variable[store.edge_to.view[done:]]
             hessian, gradient, found = edge_positions(self.pattern, self.keys, self.first, ci, cj)
-            if not found.all():
+            left_out = np.concatenate([self.left_out, done + np.flatnonzero(~found)])
+            if left_out.shape[0] > MAX_LEFT_OUT:
                 return False
+            self.left_out = left_out
+            hessian[~found] = self.pattern.nnz  # left out of H entirely: the correction adds them back
             self.hessian_at.extend(hessian)
             self.gradient_at.extend(gradient)
         return True
@@ -157,22 +171,65 @@ class WholeGraph:
         capacity = max(int(GROWTH * n) + 1, n + 64)
         i, j = store.edge_from.view, store.edge_to.view
         recent = np.arange(self.hessian_at.n if self.pattern is not None else 0, store.num_edges)
+        recent = np.concatenate([self.left_out, recent]) if self.pattern is not None else recent
         pi, pj = _predicted(i, j, n, capacity, recent)
         self.held = np.zeros(capacity, dtype=bool)
         self.held[:n] = held
-        self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d)
+        self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d,
+                                                 positions=False)
         self.keys, self.first = _off_keys(pattern)
-        # a few new blocks at the same capacity: the last elimination order stays good (AMD is a third of an
-        # analysis); it is recomputed with the capacity, the held set, or every REORDER analyses
-        same = self.factor is not None and self.factor.n == pattern.dimension and self.analyses % REORDER
-        order = self.factor.permutation if same and self.factor._factorized else None
-        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, "amd", permutation=order)
+        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, permutation=self._order(pattern))
         variable = pattern.variable_of
         hessian, gradient, _ = edge_positions(pattern, self.keys, self.first, variable[i], variable[j])
         self.hessian_at.n = self.gradient_at.n = 0
         self.hessian_at.extend(hessian)
         self.gradient_at.extend(gradient)
+        self.left_out = np.zeros(0, dtype=np.int64)
         self.analyses += 1
+
+    def _order(self, pattern) -> np.ndarray:
+        """``(D,)`` elimination order for a new analysis: AMD of the vertex graph (``p`` nodes: d² times fewer
+        entries than the scalar pattern, the same order of the blocks), expanded to the blocks. A few new
+        blocks at the same capacity leave the last order good, so it is kept, and recomputed with the
+        capacity, the held set, or every REORDER analyses."""
+        factor = self.factor
+        if factor is not None and factor.n == pattern.dimension and self.analyses % REORDER and factor._factorized:
+            return factor.permutation
+        order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
+        return block_permutation(order, pattern.block_size)
+
+    def _factorize(self, data: np.ndarray, blocks) -> None:
+        """Numeric factorisation of ``data`` (H without the left-out edges), and the low-rank correction
+        that adds them back from ``blocks`` (the same linearisation); raises NotPositiveDefiniteError."""
+        self.correction = None
+        self.factor.factorize(data)
+        if self.left_out.shape[0]:
+            i, j = self.store.edge_from.view[self.left_out], self.store.edge_to.view[self.left_out]
+            variable = self.pattern.variable_of
+            rows, values = edge_factors(blocks, self.left_out, variable[i], variable[j], self.pattern.block_size)
+            self.correction = LowRankCorrection(self.factor.solve, rows, values, self.pattern.dimension)
+
+    def _fresh(self, blocks, held: np.ndarray, n: int) -> np.ndarray | None:
+        """H assembled and factorised at ``blocks``; the gradient ``g`` ``(D,)``, or None when H is not
+        positive definite. H without left-out edges may be singular (a vertex joined only by them):
+        then every edge goes in the pattern (a new analysis) and the factorisation is tried again."""
+        for attempt in range(2):
+            data, g = self._system(blocks, n, True)
+            try:
+                self._factorize(data, blocks)
+            except NotPositiveDefiniteError:
+                if attempt or not self.left_out.shape[0]:
+                    return None
+                self._analyse(held)
+                continue
+            self.factorizations += 1
+            return g
+        return None
+
+    def _solve_full(self, rhs: np.ndarray) -> np.ndarray:
+        """``H⁻¹ rhs`` ``(D,)`` or ``(D, r)`` for the H of the last :meth:`_factorize`, left-out blocks included."""
+        x = self.factor.solve(rhs)
+        return x if self.correction is None else self.correction.apply(x)
 
     def _system(self, blocks, n: int, hessian: bool):
         """``(data (nnz,) or None, g (D,))`` of the whole graph from the per-edge ``blocks``; the rows of
@@ -217,15 +274,14 @@ class WholeGraph:
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
             blocks = objective.linearize(poses, evaluation)
-            data, g = self._system(blocks, n, fresh)
             if fresh:
-                try:
-                    self.factor.factorize(data)
-                except NotPositiveDefiniteError:
+                g = self._fresh(blocks, held, n)
+                if g is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                self.factorizations += 1
-            step = -self.factor.solve(g)
+            else:
+                _, g = self._system(blocks, n, False)
+            step = -self._solve_full(g)
             decrement = -0.5 * float(g @ step)
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
@@ -277,12 +333,12 @@ class WholeGraph:
                 self._analyse(held)
             objective, poses = Objective(self._objective(held).graph, None), self.store.poses.view
             blocks = objective.linearize(poses, objective.evaluate(poses))
-            data, _ = self._system(blocks, self.store.num_vertices, True)
-            self.factor.factorize(data)
+            if self._fresh(blocks, held, self.store.num_vertices) is None:
+                raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")
             self._factored_version = version
         d = self.pattern.block_size
         rows = d * int(self.pattern.variable_of[vertex]) + np.arange(d)
         unit = np.zeros((self.pattern.dimension, d))
         unit[rows, np.arange(d)] = 1.0
-        block = self.factor.solve(unit)[rows]
+        block = self._solve_full(unit)[rows]
         return 0.5 * (block + block.T)
