@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
+from posegraph.incremental.reuse import LastPoint
 from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.objective import Objective
@@ -127,6 +128,9 @@ class WholeGraph:
     the vertices held (FIX, anchors). :meth:`reset` drops everything (after edges are removed).
     """
 
+    max_left_out = MAX_LEFT_OUT
+    """Edges left out of H (low-rank correction) before an analysis (0: every missing block re-analyses)."""
+
     def __init__(self, store, loss=None):
         from posegraph.incremental.store import Rows
 
@@ -137,12 +141,14 @@ class WholeGraph:
         self.pattern = self.factor = self.correction = None
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
-        self.analyses = self.factorizations = 0
+        self.last = LastPoint()
+        self.analyses = self.factorizations = self.corrections = 0
 
     def reset(self) -> None:
         self.pattern = self.factor = self.correction = None
         self.hessian_at.n = self.gradient_at.n = 0
         self.left_out = np.zeros(0, dtype=np.int64)
+        self.last.clear()
 
     def _ready(self, held: np.ndarray) -> bool:
         """Scatter positions for every edge; False when the analysis no longer covers the graph: the
@@ -157,7 +163,7 @@ class WholeGraph:
             ci, cj = variable[store.edge_from.view[done:]], variable[store.edge_to.view[done:]]
             hessian, gradient, found = edge_positions(self.pattern, self.keys, self.first, ci, cj)
             left_out = np.concatenate([self.left_out, done + np.flatnonzero(~found)])
-            if left_out.shape[0] > MAX_LEFT_OUT:
+            if left_out.shape[0] > self.max_left_out:
                 return False
             self.left_out = left_out
             hessian[~found] = self.pattern.nnz  # left out of H entirely: the correction adds them back
@@ -208,6 +214,7 @@ class WholeGraph:
             variable = self.pattern.variable_of
             rows, values = edge_factors(blocks, self.left_out, variable[i], variable[j], self.pattern.block_size)
             self.correction = LowRankCorrection(self.factor.solve, rows, values, self.pattern.dimension)
+            self.corrections += 1
 
     def _fresh(self, blocks, held: np.ndarray, n: int) -> np.ndarray | None:
         """H assembled and factorised at ``blocks``; the gradient ``g`` ``(D,)``, or None when H is not
@@ -270,10 +277,13 @@ class WholeGraph:
         n, d = self.store.num_vertices, self.store.group.dim
         objective, poses = self._objective(held), self.store.poses.view
         saved = poses.copy()
-        evaluation = objective.evaluate(poses)
+        start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
+        evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
+        self.last.clear()
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
-            blocks = objective.linearize(poses, evaluation)
+            if blocks is None:
+                blocks = objective.linearize(poses, evaluation)
             if fresh:
                 g = self._fresh(blocks, held, n)
                 if g is None:
@@ -284,6 +294,7 @@ class WholeGraph:
             step = -self._solve_full(g)
             decrement = -0.5 * float(g @ step)
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
+                self.last.keep(poses, evaluation, blocks)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
             before = poses.copy()
             poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
@@ -291,16 +302,16 @@ class WholeGraph:
             if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
                 poses[:] = before
                 if not fresh:
-                    fresh = True  # the chord step failed: refactorise at this point
+                    fresh = True  # the chord step failed: refactorise at this point (its blocks as they are)
                     continue
                 trial = self._backtrack(objective, before, step, n, evaluation.cost)
                 if trial is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                previous, evaluation = np.inf, trial  # far from the optimum still: refactorise next
+                previous, evaluation, blocks = np.inf, trial, None  # far from the optimum still: refactorise next
                 continue
             fresh = not fresh and decrement > CHORD_RATE * previous
-            previous, evaluation = decrement, trial
+            previous, evaluation, blocks = decrement, trial, None
         return True, iteration, self._terms(objective, evaluation)
 
     def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
