@@ -143,8 +143,7 @@ def analyze_pattern(
         Landmark variables (``s``-sized blocks, numbered after the poses) and the families of
         measurements joining them to poses (:class:`PointVariables`); None: a pose graph.
     positions : bool
-        False: the edges' scatter maps (``hessian_positions``, ``gradient_positions``) are not made
-        (None), for a caller that places only some of the edges itself (:mod:`posegraph.incremental.whole`).
+        False: no per-edge scatter maps (None), for a caller that places edges itself (``incremental.whole``).
     """
     n, d = int(num_vertices), int(block_size)
     ei = np.asarray(edge_from, dtype=np.int64)
@@ -164,10 +163,9 @@ def analyze_pattern(
     blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
     system = _scalar_layout(blocks, sizes, offsets)
     layout = system.layout
-    hessian_positions = gradient_positions = None
-    if positions:
-        hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz)
-        gradient_positions = _narrowest(np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1), system.dimension)
+    hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz) if positions else None
+    rows = np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1) if positions else None
+    gradient_positions = _narrowest(rows, system.dimension) if positions else None
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,
