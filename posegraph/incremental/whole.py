@@ -63,6 +63,17 @@ BACKTRACK = 6
 CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
 
+CHORD_ODDS = 0.3
+"""A chord step is taken only while at least this share of the recent ones (a moving
+average, weight 1/8 to the last) lowered the cost; otherwise the next step refactorises at once. On
+intel most chord steps are accepted; on manhattan and parking-garage ~90 % raise the cost (measured;
+presumably their loop closures' large first steps turn the tangent frames the old factor was made in),
+and each rejected one costs an evaluation of the whole graph for nothing. The Newton decrement is still computed on the
+old factor first (the stopping test). Every PROBE-th chance a chord step is tried anyway."""
+
+PROBE = 16
+"""Every this many chances a chord step is tried whatever the odds, so that the odds can recover."""
+
 MAX_LEFT_OUT = 2
 """Edges whose block is outside the held pattern that are left out of the factorised matrix and put
 back by a low-rank correction (:mod:`posegraph.incremental.lowrank`) before a new analysis is made. The
@@ -151,7 +162,8 @@ class WholeGraph:
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
-        self.analyses = self.factorizations = self.corrections = 0
+        self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
+        self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
 
     def reset(self) -> None:
         self.pattern = self.factor = self.correction = None
@@ -305,12 +317,16 @@ class WholeGraph:
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.last.keep(poses, evaluation, blocks)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
+            if not fresh and not self._chord_pays():
+                fresh = True  # chord steps keep raising the cost here: refactorise at this point instead
+                continue
             before = poses.copy()
             poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
             trial = objective.evaluate(poses) if decrement > 0 else None
             if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
                 poses[:] = before
                 if not fresh:
+                    self._chord_outcome(False)
                     fresh = True  # the chord step failed: refactorise at this point (its blocks as they are)
                     continue
                 trial = self._backtrack(objective, before, step, n, evaluation.cost)
@@ -319,9 +335,19 @@ class WholeGraph:
                     return False, iteration, np.zeros(0)
                 previous, evaluation, blocks = np.inf, trial, None  # far from the optimum still: refactorise next
                 continue
+            if not fresh:
+                self._chord_outcome(True)
             fresh = not fresh and decrement > CHORD_RATE * previous
             previous, evaluation, blocks = decrement, trial, None
         return True, iteration, self._terms(objective, evaluation)
+
+    def _chord_pays(self) -> bool:
+        """Whether to try the chord step now (CHORD_ODDS, PROBE)."""
+        self.chord_chances += 1
+        return self.chord_odds >= CHORD_ODDS or self.chord_chances % PROBE == 0
+
+    def _chord_outcome(self, accepted: bool) -> None:
+        self.chord_odds += (float(accepted) - self.chord_odds) / 8
 
     def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
         """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the

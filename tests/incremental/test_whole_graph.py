@@ -134,3 +134,17 @@ def test_the_kept_linearisation_extended_equals_a_fresh_one(loss):
         assert np.array_equal(getattr(kept[1], name), getattr(blocks, name))
     poses[3] = poses[3] @ group.exp(np.full((1, 6), 1e-9))[0]  # a kept pose moved: not used
     assert whole.last.extended(objective, poses) is None
+
+
+def test_chord_steps_are_skipped_while_they_fail_and_probed():
+    from posegraph.incremental.whole import CHORD_ODDS, PROBE
+
+    whole = IncrementalOptimizer(SE2)._whole
+    assert whole._chord_pays()
+    for _ in range(20):
+        whole._chord_outcome(False)
+    assert whole.chord_odds < CHORD_ODDS
+    assert sum(whole._chord_pays() for _ in range(PROBE)) == 1  # one probe in PROBE chances
+    for _ in range(20):
+        whole._chord_outcome(True)
+    assert all(whole._chord_pays() for _ in range(PROBE))
