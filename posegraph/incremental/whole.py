@@ -64,12 +64,12 @@ CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
 
 CHORD_ODDS = 0.3
-"""A chord step is taken only while at least this share of the recent ones (a moving
-average, weight 1/8 to the last) lowered the cost; otherwise the next step refactorises at once. On
-intel most chord steps are accepted; on manhattan and parking-garage ~90 % raise the cost (measured;
-presumably their loop closures' large first steps turn the tangent frames the old factor was made in),
-and each rejected one costs an evaluation of the whole graph for nothing. The Newton decrement is still computed on the
-old factor first (the stopping test). Every PROBE-th chance a chord step is tried anyway."""
+"""A chord step is taken only while at least this share of the recent ones (a moving average, weight
+1/8 to the last) lowered the cost; otherwise the next step refactorises at once. On intel most chord
+steps are accepted; on manhattan and parking-garage ~90 % raise the cost (measured; presumably their
+loop closures' large first steps turn the tangent frames the old factor was made in), and each
+rejected one costs an evaluation of the whole graph for nothing. The Newton decrement is still
+computed on the old factor first (the stopping test). Every PROBE-th chance a chord step is tried."""
 
 PROBE = 16
 """Every this many chances a chord step is tried whatever the odds, so that the odds can recover."""
