@@ -5,19 +5,25 @@ graph anyway; here every update with work to do runs undamped Gauss-Newton on th
 what does not change between updates is kept:
 
 * **The analysis.** The block pattern of H (:func:`posegraph.solve.sparsity.analyze_pattern`) and
-  CHOLMOD's symbolic factorisation (AMD) are made for a *capacity* larger than the graph (×1.5), the
+  CHOLMOD's symbolic factorisation (AMD) are made for a *capacity* larger than the graph (×GROWTH), the
   vertices not yet added decoupled (unit diagonal, zero gradient: their step is 0). The pattern holds
   the blocks of every edge so far, the odometry chain ``(v, v+1)`` of the vertices to come, and, for
   each loop closure ``(lo, hi)`` added since the last analysis, the cone of blocks a re-traversal
   would add next (``(lo + t, hi + s)``, ``1 ≤ s ≤ PREDICT``, ``−s−2 ≤ t ≤ 3s+2``: the older end may
   advance at another pace, or back). A new edge whose block is in the pattern costs only its
-  scatter positions; the analysis is redone when the capacity is exceeded, a block is missing or the
-  held set (FIX, anchors) changed — amortised over many updates.
+  scatter positions. Up to MAX_LEFT_OUT edges whose block is missing are left out of the factorised
+  matrix and added back exactly by a low-rank (Woodbury) correction (:mod:`posegraph.incremental.lowrank`);
+  the analysis is redone when more are missing, the capacity is exceeded, the held set (FIX, anchors)
+  changed, or H without the left-out edges is singular — amortised over many updates. It orders the
+  vertex graph (AMD on p nodes), expanded to the blocks.
 * **The factor (chord steps).** After a step on a fresh factorisation, the next steps reuse it with
   the exact gradient at the new point (``δ = −H_old⁻¹ g``): the Hessian blocks and the numeric
   factorisation are skipped while the Newton decrement falls by at least ×4 per step; else the next
   step refactorises. The stopping test is the decrement ``½ gᵀH⁻¹g ≤ tolerance · cost`` at the current
   point (the excess over the optimum, to second order), so accuracy rests on the exact gradient.
+* **The last linearisation.** A solve ends linearised at its final point; the next one starts from
+  that evaluation and linearisation with only the new edges computed (:mod:`posegraph.incremental.reuse`),
+  as long as no old pose moved in between (odometry is placed by composition) and there are no priors.
 
 Each step's cost is the exact one (:class:`posegraph.solve.objective.Objective`, losses and priors
 included); a step that raises it restores the poses (after a chord step: a refactorised step is tried;
@@ -28,7 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky
+from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
+from posegraph.incremental.reuse import LastPoint
+from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.objective import Objective
 from posegraph.solve.residuals import squared_norms
@@ -37,8 +45,11 @@ from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
 
 __all__ = ["WholeGraph", "edge_positions", "GROWTH", "PREDICT"]
 
-GROWTH = 1.5
-"""Capacity of an analysis relative to the vertex count it was made at."""
+GROWTH = 1.1
+"""Capacity of an analysis relative to the vertex count it was made at (at least 64 vertices more). The
+vertices to come are factorised with the rest at every step (unit diagonal, chain blocks), and most
+analyses come from new blocks every few loop-closure updates, not from the capacity: at ×1.5 a
+replay of manhattan / parking-garage took ~10 % longer and ~40 % more CPU than at ×1.1."""
 
 PREDICT = 8
 """Blocks predicted along each loop closure of the update that forced an analysis, each direction."""
@@ -56,6 +67,23 @@ BACKTRACK = 6
 
 CHORD_RATE = 0.25
 """A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
+
+CHORD_ODDS = 0.3
+"""A chord step is taken only while at least this share of the recent ones (a moving average, weight
+1/8 to the last) lowered the cost; otherwise the next step refactorises at once. On intel most chord
+steps are accepted; on manhattan and parking-garage ~90 % raise the cost (measured; presumably their
+loop closures' large first steps turn the tangent frames the old factor was made in), and each
+rejected one costs an evaluation of the whole graph for nothing. The Newton decrement is still
+computed on the old factor first (the stopping test). Every PROBE-th chance a chord step is tried."""
+
+PROBE = 16
+"""Every this many chances a chord step is tried whatever the odds, so that the odds can recover."""
+
+MAX_LEFT_OUT = 2
+"""Edges whose block is outside the held pattern that are left out of the factorised matrix and put
+back by a low-rank correction (:mod:`posegraph.incremental.lowrank`) before a new analysis is made. The
+correction costs d solves per left-out edge at every numeric factorisation (cvxopt's CHOLMOD solves
+one right-hand side at a time), so only a few are worth it against one analysis."""
 
 
 def _off_keys(pattern) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +153,9 @@ class WholeGraph:
     the vertices held (FIX, anchors). :meth:`reset` drops everything (after edges are removed).
     """
 
+    max_left_out = MAX_LEFT_OUT
+    """Edges left out of H (low-rank correction) before an analysis (0: every missing block re-analyses)."""
+
     def __init__(self, store, loss=None):
         from posegraph.incremental.store import Rows
 
@@ -132,16 +163,23 @@ class WholeGraph:
         d = store.group.dim
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
-        self.pattern = self.factor = None
+        self.pattern = self.factor = self.correction = None
+        self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
-        self.analyses = self.factorizations = 0
+        self.last = LastPoint()
+        self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
+        self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
 
     def reset(self) -> None:
-        self.pattern = self.factor = None
+        self.pattern = self.factor = self.correction = None
         self.hessian_at.n = self.gradient_at.n = 0
+        self.left_out = np.zeros(0, dtype=np.int64)
+        self.last.clear()
 
     def _ready(self, held: np.ndarray) -> bool:
-        """Scatter positions for every edge; False when the analysis no longer covers the graph."""
+        """Scatter positions for every edge; False when the analysis no longer covers the graph: the
+        capacity or the held set changed, or more than MAX_LEFT_OUT edges would have their block outside
+        the pattern (those are left out of H: :mod:`~posegraph.incremental.lowrank`)."""
         store, n = self.store, self.store.num_vertices
         if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
             return False
@@ -150,8 +188,11 @@ class WholeGraph:
             variable = self.pattern.variable_of
             ci, cj = variable[store.edge_from.view[done:]], variable[store.edge_to.view[done:]]
             hessian, gradient, found = edge_positions(self.pattern, self.keys, self.first, ci, cj)
-            if not found.all():
+            left_out = np.concatenate([self.left_out, done + np.flatnonzero(~found)])
+            if left_out.shape[0] > self.max_left_out:
                 return False
+            self.left_out = left_out
+            hessian[~found] = self.pattern.nnz  # left out of H entirely: the correction adds them back
             self.hessian_at.extend(hessian)
             self.gradient_at.extend(gradient)
         return True
@@ -163,22 +204,66 @@ class WholeGraph:
         i, j = store.edge_from.view, store.edge_to.view
         recent = np.arange(self.hessian_at.n if self.pattern is not None else 0, store.num_edges)
         recent = recent[np.abs(i[recent] - j[recent]) > 1][-PREDICTED_LOOPS:]
+        recent = np.concatenate([self.left_out, recent]) if self.pattern is not None else recent
         pi, pj = _predicted(i, j, n, capacity, recent)
         self.held = np.zeros(capacity, dtype=bool)
         self.held[:n] = held
-        self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d)
+        self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d,
+                                                 positions=False)
         self.keys, self.first = _off_keys(pattern)
-        # a few new blocks at the same capacity: the last elimination order stays good (AMD is a third of an
-        # analysis); it is recomputed with the capacity, the held set, or every REORDER analyses
-        same = self.factor is not None and self.factor.n == pattern.dimension and self.analyses % REORDER
-        order = self.factor.permutation if same and self.factor._factorized else None
-        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, "amd", permutation=order)
+        self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, permutation=self._order(pattern))
         variable = pattern.variable_of
         hessian, gradient, _ = edge_positions(pattern, self.keys, self.first, variable[i], variable[j])
         self.hessian_at.n = self.gradient_at.n = 0
         self.hessian_at.extend(hessian)
         self.gradient_at.extend(gradient)
+        self.left_out = np.zeros(0, dtype=np.int64)
         self.analyses += 1
+
+    def _order(self, pattern) -> np.ndarray:
+        """``(D,)`` elimination order for a new analysis: AMD of the vertex graph (``p`` nodes: d² times fewer
+        entries than the scalar pattern, the same order of the blocks), expanded to the blocks. A few new
+        blocks at the same capacity leave the last order good, so it is kept, and recomputed with the
+        capacity, the held set, or every REORDER analyses."""
+        factor = self.factor
+        if factor is not None and factor.n == pattern.dimension and self.analyses % REORDER and factor._factorized:
+            return factor.permutation
+        order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
+        return block_permutation(order, pattern.block_size)
+
+    def _factorize(self, data: np.ndarray, blocks) -> None:
+        """Numeric factorisation of ``data`` (H without the left-out edges), and the low-rank correction
+        that adds them back from ``blocks`` (the same linearisation); raises NotPositiveDefiniteError."""
+        self.correction = None
+        self.factor.factorize(data)
+        if self.left_out.shape[0]:
+            i, j = self.store.edge_from.view[self.left_out], self.store.edge_to.view[self.left_out]
+            variable = self.pattern.variable_of
+            rows, values = edge_factors(blocks, self.left_out, variable[i], variable[j], self.pattern.block_size)
+            self.correction = LowRankCorrection(self.factor.solve, rows, values, self.pattern.dimension)
+            self.corrections += 1
+
+    def _fresh(self, blocks, held: np.ndarray, n: int) -> np.ndarray | None:
+        """H assembled and factorised at ``blocks``; the gradient ``g`` ``(D,)``, or None when H is not
+        positive definite. H without left-out edges may be singular (a vertex joined only by them):
+        then every edge goes in the pattern (a new analysis) and the factorisation is tried again."""
+        for attempt in range(2):
+            data, g = self._system(blocks, n, True)
+            try:
+                self._factorize(data, blocks)
+            except NotPositiveDefiniteError:
+                if attempt or not self.left_out.shape[0]:
+                    return None
+                self._analyse(held)
+                continue
+            self.factorizations += 1
+            return g
+        return None
+
+    def _solve_full(self, rhs: np.ndarray) -> np.ndarray:
+        """``H⁻¹ rhs`` ``(D,)`` or ``(D, r)`` for the H of the last :meth:`_factorize`, left-out blocks included."""
+        x = self.factor.solve(rhs)
+        return x if self.correction is None else self.correction.apply(x)
 
     def _system(self, blocks, n: int, hessian: bool):
         """``(data (nnz,) or None, g (D,))`` of the whole graph from the per-edge ``blocks``; the rows of
@@ -220,41 +305,58 @@ class WholeGraph:
         n, d = self.store.num_vertices, self.store.group.dim
         objective, poses = self._objective(held), self.store.poses.view
         saved = poses.copy()
-        evaluation = objective.evaluate(poses)
+        start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
+        evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
+        self.last.clear()
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
-            blocks = objective.linearize(poses, evaluation)
-            data, g = self._system(blocks, n, fresh)
+            if blocks is None:
+                blocks = objective.linearize(poses, evaluation)
             if fresh:
-                try:
-                    self.factor.factorize(data)
-                except NotPositiveDefiniteError:
+                g = self._fresh(blocks, held, n)
+                if g is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                self.factorizations += 1
-            step = -self.factor.solve(g)
+            else:
+                _, g = self._system(blocks, n, False)
+            step = -self._solve_full(g)
             decrement = -0.5 * float(g @ step)
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
+                self.last.keep(poses, evaluation, blocks)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
+            if not fresh and not self._chord_pays():
+                fresh = True  # chord steps keep raising the cost here: refactorise at this point instead
+                continue
             before = poses.copy()
             poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
             trial = objective.evaluate(poses) if decrement > 0 else None
             if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
                 poses[:] = before
                 if not fresh:
-                    fresh = True  # the chord step failed: refactorise at this point
+                    self._chord_outcome(False)
+                    fresh = True  # the chord step failed: refactorise at this point (its blocks as they are)
                     continue
                 trial = self._backtrack(objective, before, step, n, evaluation.cost)
                 if trial is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                previous, evaluation = np.inf, trial  # far from the optimum still: refactorise next
+                previous, evaluation, blocks = np.inf, trial, None  # far from the optimum still: refactorise next
                 continue
+            if not fresh:
+                self._chord_outcome(True)
             fresh = not fresh and decrement > CHORD_RATE * previous
-            previous, evaluation = decrement, trial
+            previous, evaluation, blocks = decrement, trial, None
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
         return True, iteration, self._terms(objective, evaluation)
+
+    def _chord_pays(self) -> bool:
+        """Whether to try the chord step now (CHORD_ODDS, PROBE)."""
+        self.chord_chances += 1
+        return self.chord_odds >= CHORD_ODDS or self.chord_chances % PROBE == 0
+
+    def _chord_outcome(self, accepted: bool) -> None:
+        self.chord_odds += (float(accepted) - self.chord_odds) / 8
 
     def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
         """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the
@@ -286,12 +388,12 @@ class WholeGraph:
                 self._analyse(held)
             objective, poses = Objective(self._objective(held).graph, None), self.store.poses.view
             blocks = objective.linearize(poses, objective.evaluate(poses))
-            data, _ = self._system(blocks, self.store.num_vertices, True)
-            self.factor.factorize(data)
+            if self._fresh(blocks, held, self.store.num_vertices) is None:
+                raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")
             self._factored_version = version
         d = self.pattern.block_size
         rows = d * int(self.pattern.variable_of[vertex]) + np.arange(d)
         unit = np.zeros((self.pattern.dimension, d))
         unit[rows, np.arange(d)] = 1.0
-        block = self.factor.solve(unit)[rows]
+        block = self._solve_full(unit)[rows]
         return 0.5 * (block + block.T)

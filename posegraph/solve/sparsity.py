@@ -62,13 +62,13 @@ class HessianPattern:
     p×p graph of free vertices, one entry per stored d×d block (for block orderings)."""
     block_indices: np.ndarray
     """``(p + number of off-diagonal blocks,)`` int32 rows of that pattern, diagonal first in each column."""
-    hessian_positions: np.ndarray
+    hessian_positions: np.ndarray | None
     """``(3, d²·m)`` int32 (int64 past 2³¹ stored entries): row ``k`` holds the position in ``data`` of each entry of the ``k``-th
     per-edge blocks ``(m, d, d)`` raveled, ``k = 0, 1, 2`` for ``H_ii, H_jj, H_ij``; ``nnz`` for
-    entries that are not stored."""
-    gradient_positions: np.ndarray
+    entries that are not stored (None: not made, ``analyze_pattern(positions=False)``)."""
+    gradient_positions: np.ndarray | None
     """``(2d·m,)`` int32 (int64 past 2³¹): row of ``g`` of each entry of ``grads.ravel()``, for ``grads`` of shape
-    ``(m, 2, d)`` stacking ``[g_i, g_j]`` of each edge; ``dp`` for held vertices' entries."""
+    ``(m, 2, d)`` stacking ``[g_i, g_j]`` of each edge; ``dp`` for held vertices' entries (None: not made)."""
     block_size: int = BLOCK
     """Block size ``d`` of the poses: the tangent dimension of the graph's group (6 for SE(3))."""
     sizes: np.ndarray | None = None
@@ -125,7 +125,8 @@ class HessianPattern:
 
 
 def analyze_pattern(
-    num_vertices: int, edge_from, edge_to, held, block_size: int = BLOCK, points: "PointVariables | None" = None
+    num_vertices: int, edge_from, edge_to, held, block_size: int = BLOCK, points: "PointVariables | None" = None,
+    positions: bool = True,
 ) -> HessianPattern:
     """Compute the block sparsity of H and the per-edge scatter maps.
 
@@ -141,6 +142,8 @@ def analyze_pattern(
     points : PointVariables, optional
         Landmark variables (``s``-sized blocks, numbered after the poses) and the families of
         measurements joining them to poses (:class:`PointVariables`); None: a pose graph.
+    positions : bool
+        False: no per-edge scatter maps (None), for a caller that places edges itself (``incremental.whole``).
     """
     n, d = int(num_vertices), int(block_size)
     ei = np.asarray(edge_from, dtype=np.int64)
@@ -160,8 +163,9 @@ def analyze_pattern(
     blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
     system = _scalar_layout(blocks, sizes, offsets)
     layout = system.layout
-    hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz)
-    gradient_positions = _narrowest(np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1), system.dimension)
+    hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz) if positions else None
+    rows = np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1) if positions else None
+    gradient_positions = _narrowest(rows, system.dimension) if positions else None
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,

@@ -1,0 +1,150 @@
+"""The whole-graph solver's shortcuts against the direct computations they stand for."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posegraph.incremental import IncrementalOptimizer
+from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
+from posegraph.incremental.replay import cost_excess
+from posegraph.lie.group import SE2, SE3
+from posegraph.model.graph import PoseGraph
+from posegraph.robust.losses import make_loss
+from posegraph.solve.objective import Objective
+
+from .test_incremental import _feed, _information, _noisy, _truth
+
+
+def _random_graph(rng, group, n, m):
+    truth = _truth(rng, group, n)
+    i = rng.integers(0, n, size=m)
+    j = (i + rng.integers(1, n, size=m)) % n
+    z = _noisy(rng, group, group.between(truth[i], truth[j]), 0.2)
+    poses = truth @ group.exp(rng.normal(scale=0.1, size=(n, group.dim)))
+    return PoseGraph(ids=np.arange(n), poses=poses, edge_from=i, edge_to=j, measurements=z,
+                     information=_information(group, m), fixed=np.zeros(n, dtype=bool), group=group)
+
+
+@pytest.mark.parametrize("loss", [None, "cauchy"])
+def test_low_rank_correction_solves_the_full_system(loss):
+    """``H = A + U Uᵀ`` for edges left out of A, solved by the correction, equals a dense solve of H."""
+    group, rng = SE3, np.random.default_rng(11)
+    graph = _random_graph(rng, group, 7, 12)
+    objective = Objective(graph, make_loss(loss, dimension=6) if loss else None)
+    blocks = objective.linearize(graph.poses, objective.evaluate(graph.poses))
+    d, D = group.dim, 7 * group.dim
+    h_ii, h_jj, h_ij = blocks.hessian_blocks
+    full = np.zeros((D, D))
+    for e, (i, j) in enumerate(zip(graph.edge_from, graph.edge_to)):
+        a, b = slice(d * i, d * i + d), slice(d * j, d * j + d)
+        full[a, a] += h_ii[e]
+        full[b, b] += h_jj[e]
+        full[a, b] += h_ij[e]
+        full[b, a] += h_ij[e].T
+    full += 10.0 * np.eye(D)  # a prior on every pose: H positive definite
+    left_out = np.array([2, 5, 9])
+    rows, values = edge_factors(blocks, left_out, graph.edge_from[left_out], graph.edge_to[left_out], d)
+    u = np.zeros((D, values.shape[1]))
+    np.add.at(u, rows, values)
+    a_matrix = full - u @ u.T  # H without the left-out edges
+    assert np.allclose(a_matrix, a_matrix.T) and np.linalg.eigvalsh(a_matrix).min() > 0
+    assert not np.allclose(u @ u.T, 0)
+    correction = LowRankCorrection(lambda b: np.linalg.solve(a_matrix, b), rows, values, D)
+    rhs = rng.normal(size=(D, 3))
+    ours = correction.apply(np.linalg.solve(a_matrix, rhs))
+    assert np.abs(ours - np.linalg.solve(full, rhs)).max() <= 1e-10 * np.abs(ours).max()
+
+
+def _replay(group, seed, max_left_out, count=45):
+    rng = np.random.default_rng(seed)
+    truth = _truth(rng, group, count)
+    opt = IncrementalOptimizer(group)
+    opt._whole.max_left_out = max_left_out
+    poses = []
+    for v in range(count):
+        _feed(opt, rng, group, truth, v, loops=1 if v % 4 else 0)
+        opt.update()
+        poses.append(opt.poses.copy())
+    return opt, poses
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+def test_left_out_loop_closures_give_the_estimate_of_a_reanalysis(group):
+    """Loop closures outside the held pattern, solved with the low-rank correction, give the estimates
+    that re-analysing for every one of them gives, after every update."""
+    corrected, ours = _replay(group, 21, max_left_out=4)
+    analysed, theirs = _replay(group, 21, max_left_out=0)
+    assert corrected._whole.corrections > 0 and analysed._whole.corrections == 0
+    assert corrected._whole.analyses < analysed._whole.analyses
+    for a, b in zip(ours, theirs):
+        assert np.abs(a - b).max() <= 1e-7
+    _, cost, best, excess = cost_excess(corrected)
+    assert excess <= 1e-6 or cost - best <= 1e-12
+
+
+def test_a_vertex_joined_only_by_a_left_out_edge_is_solved():
+    """A new branch whose only edge is outside the pattern leaves H without it singular: re-analysed, solved."""
+    group, rng = SE2, np.random.default_rng(2)
+    truth = _truth(rng, group, 31)
+    opt = IncrementalOptimizer(group)
+    for v in range(30):
+        _feed(opt, rng, group, truth, v, loops=0)
+        if v == 20:  # a loop closure: the first solve, the first analysis
+            opt.add_edges([2], [20], _noisy(rng, group, group.between(truth[2:3], truth[20:21]), 0.1), _information(group, 1))
+        opt.update()
+    assert opt._whole.pattern is not None
+    opt.add_vertices([100], truth[30:31])
+    opt.add_edges([3, 5], [100, 25], _noisy(rng, group, group.between(truth[[3, 5]], truth[[30, 25]]), 0.1),
+                  _information(group, 2))
+    analyses = opt._whole.analyses
+    info = opt.update()
+    assert info.kind == "whole" and opt._whole.analyses == analyses + 1
+    _, cost, best, excess = cost_excess(opt)
+    assert excess <= 1e-6 or cost - best <= 1e-12
+
+
+@pytest.mark.parametrize("loss", [None, "huber"])
+def test_the_kept_linearisation_extended_equals_a_fresh_one(loss):
+    """After odometry-only updates, the last solve's linearisation with the new edges added equals the
+    whole graph's evaluated and linearised anew."""
+    from posegraph.solve import SolverParams
+
+    group, rng = SE3, np.random.default_rng(4)
+    truth = _truth(rng, group, 20)
+    params = SolverParams(loss=make_loss(loss, dimension=6) if loss else None)
+    opt = IncrementalOptimizer(group, params=params)
+    for v in range(15):
+        _feed(opt, rng, group, truth, v, loops=1)
+        opt.update()
+    for v in range(15, 20):
+        _feed(opt, rng, group, truth, v, loops=0)
+        assert opt.update().kind == "exact"
+    whole = opt._whole
+    objective, poses = whole._objective(opt.held()), opt._store.poses.view
+    kept = whole.last.extended(objective, poses)
+    assert kept is not None and kept[0].residuals.shape[0] == opt.num_edges
+    evaluation = objective.evaluate(poses)
+    blocks = objective.linearize(poses, evaluation)
+    assert kept[0].cost == pytest.approx(evaluation.cost, rel=1e-13)
+    for name in ("relative", "residuals", "weights"):
+        a, b = getattr(kept[0], name), getattr(evaluation, name)
+        assert (a is None and b is None) or np.array_equal(a, b)
+    for name in ("gradient", "jacobian_inverse", "adjoint"):
+        assert np.array_equal(getattr(kept[1], name), getattr(blocks, name))
+    poses[3] = poses[3] @ group.exp(np.full((1, 6), 1e-9))[0]  # a kept pose moved: not used
+    assert whole.last.extended(objective, poses) is None
+
+
+def test_chord_steps_are_skipped_while_they_fail_and_probed():
+    from posegraph.incremental.whole import CHORD_ODDS, PROBE
+
+    whole = IncrementalOptimizer(SE2)._whole
+    assert whole._chord_pays()
+    for _ in range(20):
+        whole._chord_outcome(False)
+    assert whole.chord_odds < CHORD_ODDS
+    assert sum(whole._chord_pays() for _ in range(PROBE)) == 1  # one probe in PROBE chances
+    for _ in range(20):
+        whole._chord_outcome(True)
+    assert all(whole._chord_pays() for _ in range(PROBE))
