@@ -63,7 +63,7 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
     Returns ``(touched, landmark_work)``: the touched vertices, and whether a landmark measurement needs
     a solve (:func:`posegraph.incremental.landmark_commit.commit_landmarks`).
     """
-    from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks
+    from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks, remove_landmark_measurements
 
     store, components = opt._store, opt._components
     touched: list[int] = []
@@ -91,9 +91,12 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
             touched += vertices.tolist()
             for v in vertices.tolist():
                 touched += components.anchor_by_prior(v, store.fixed.view)
+    if batch.landmark_removals:
+        touched += remove_landmark_measurements(opt, batch)
     released, landmark_work = commit_landmarks(opt, batch) if batch.landmarks or batch.landmark_measurements else ([], False)
     touched += released
-    if batch.removals:
+    landmark_work = landmark_work or bool(batch.landmark_removals)
+    if batch.removals or batch.landmark_removals:
         touched += components.rebuild(store.ids.view, store.fixed.view, store.edge_from.view, store.edge_to.view,
                                       np.flatnonzero(store.prior_vertex_mask()))
         touched += rejoin_through_landmarks(opt)

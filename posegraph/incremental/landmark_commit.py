@@ -21,7 +21,7 @@ from posegraph.init.landmarks import initialize_landmarks
 from posegraph.model.graph import PoseGraph
 from posegraph.model.landmarks import Landmarks, Observations
 
-__all__ = ["check_placeable", "commit_landmarks", "rejoin_through_landmarks"]
+__all__ = ["check_placeable", "commit_landmarks", "rejoin_through_landmarks", "remove_landmark_measurements"]
 
 EXACT_KINDS = ("position", "bearing_range")
 """Kinds of which one measurement determines a point exactly (a bearing gives a ray)."""
@@ -55,18 +55,25 @@ def commit_landmarks(opt, batch) -> tuple[list[int], bool]:
     return released, any(not _all_exact(landmark, exact, first_new) for _, _, landmark in rows)
 
 
+def remove_landmark_measurements(opt, batch) -> list[int]:
+    """Drop the measurements ``batch`` retracts (before its new ones go in); the poses that made them."""
+    keys = np.concatenate(batch.landmark_removals)
+    return opt._landmarks.remove(keys).tolist()
+
+
 def _all_exact(landmark: np.ndarray, exact: np.ndarray, first_new: int) -> bool:
     """Whether every measurement of ``landmark`` ``(q,)`` placed its (new) landmark exactly."""
     return bool(np.all(landmark >= first_new) and np.all(exact[landmark - first_new]))
 
 
-def _append(opt, kind, tag, pose_ids, landmark_ids, z, w, offsets):
+def _append(opt, kind, tag, pose_ids, landmark_ids, z, w, offsets, keys):
     """One staged family appended; ``(family, new rows (slice), their landmark indices)``."""
     poses = np.full(pose_ids.shape[0], -1, np.int64) if kind == "prior" else opt._store.indices_of(pose_ids, "landmark measurement")
     landmarks = opt._landmarks.indices_of(landmark_ids, "landmark measurement")
     family = opt._landmarks.family(kind, tag)
     start = family.count
-    family.extend(poses, landmarks, z, w, offsets)
+    family.extend(poses, landmarks, z, w, offsets, keys)
+    opt._landmarks.next_key += keys.shape[0]
     return family, slice(start, family.count), landmarks
 
 

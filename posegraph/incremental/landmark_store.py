@@ -28,18 +28,27 @@ class LandmarkFamily:
         self.pose, self.landmark = Rows((), np.int64), Rows((), np.int64)
         self.measurements, self.information = Rows((r,)), Rows((r, r))
         self.offsets = Rows((k, k)) if kind == "position" else None
+        self.keys = Rows((), np.int64)
+        """Per measurement: its key (what :meth:`IncrementalOptimizer.add_landmark_measurements` returned)."""
 
     @property
     def count(self) -> int:
         return self.landmark.n
 
-    def extend(self, pose, landmark, measurements, information, offsets) -> None:
+    def extend(self, pose, landmark, measurements, information, offsets, keys) -> None:
+        self.keys.extend(keys)
         self.pose.extend(pose)
         self.landmark.extend(landmark)
         self.measurements.extend(measurements)
         self.information.extend(information)
         if self.offsets is not None:
             self.offsets.extend(offsets)
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Only the measurements where ``mask`` ``(q,)`` is True, in order."""
+        for rows in (self.keys, self.pose, self.landmark, self.measurements, self.information, self.offsets):
+            if rows is not None:
+                rows.keep(mask)
 
     def observations(self) -> Observations:
         """The family as the model holds it (copies)."""
@@ -62,6 +71,7 @@ class LandmarkStore:
         """Per landmark: ``FIX`` or under a point prior (it anchors the component of the poses seeing it)."""
         self.index: dict[int, int] = {}
         self.families: dict[tuple[str, str], LandmarkFamily] = {}
+        self.next_key = 0
         self.vertex_tag = "VERTEX_XY" if group.space_dim == 2 else "VERTEX_TRACKXYZ"
 
     @property
@@ -95,6 +105,35 @@ class LandmarkStore:
         observations = tuple(f.observations() for f in self.families.values() if f.count)
         return Landmarks(self.ids.view.copy(), self.positions.view.copy(), observations, self.fixed.view.copy(),
                          self.vertex_tag)
+
+    def remove(self, keys: np.ndarray) -> np.ndarray:
+        """Drop the measurements of ``keys`` (checked by :meth:`find`); the poses that made them. Each
+        landmark's first observer and tie (``FIX``, a point prior) are then recomputed from what is left."""
+        poses = []
+        for family in self.families.values():
+            gone = np.isin(family.keys.view, keys)
+            poses.append(family.pose.view[gone & (family.pose.view >= 0)])
+            family.keep(~gone)
+        self.first_pose.view[:] = -1
+        self.tied.view[:] = self.fixed.view
+        first = self.first_pose.view
+        for family in self.families.values():
+            if family.kind == "prior":
+                self.tied.view[family.landmark.view] = True
+                continue
+            seen, row = np.unique(family.landmark.view, return_index=True)  # any observer joins; the first kept
+            unset = first[seen] < 0
+            first[seen[unset]] = family.pose.view[row[unset]]
+        return np.concatenate(poses) if poses else np.zeros(0, np.int64)
+
+    def find(self, keys: np.ndarray) -> None:
+        """``GraphError`` naming the first of ``keys`` no measurement has, or one given twice."""
+        known = np.concatenate([f.keys.view for f in self.families.values()]) if self.families else np.zeros(0, np.int64)
+        missing = np.flatnonzero(~np.isin(keys, known))
+        if missing.size:
+            raise GraphError(f"landmark measurement to remove #{int(missing[0])}: no measurement with key {int(keys[missing[0]])}")
+        if np.unique(keys).shape[0] != keys.shape[0]:
+            raise GraphError("landmark measurements to remove: a key is given twice")
 
     def observed_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(pose, landmark)`` of every pose–landmark measurement so far (priors left out)."""

@@ -71,10 +71,11 @@ class _Batch:
         self.landmarks: list[tuple] = []
         self.known_landmarks: set[int] = set()
         self.landmark_measurements: list[tuple] = []
+        self.landmark_removals: list[np.ndarray] = []
 
     def empty(self) -> bool:
         return not (self.ids or self.edges or self.pose_priors or self.position_priors or self.removals
-                    or self.landmarks or self.landmark_measurements)
+                    or self.landmarks or self.landmark_measurements or self.landmark_removals)
 
 
 def _ids(values, what: str) -> np.ndarray:
@@ -289,12 +290,13 @@ class IncrementalOptimizer:
         self._batch.known_landmarks.update(ids.tolist())
 
     def add_landmark_measurements(self, kind: str, pose_ids, landmark_ids, measurements, information, *,
-                                  offsets=None, tag: str = "") -> None:
+                                  offsets=None, tag: str = "") -> np.ndarray:
         """Stage measurements of one kind (:data:`posegraph.model.landmarks.KINDS`; residuals as in
         :mod:`posegraph.model.landmarks`): pose ``pose_ids`` ``(q,)`` (None for ``"prior"``) sees landmark
         ``landmark_ids`` ``(q,)`` as ``measurements`` ``(q, r)`` with ``information`` ``(q, r, r)``;
         ``offsets`` ``(q, k, k)``: the sensor in the body frame (``"position"``; identity if None);
-        ``tag``: the file tag written back (``EDGE_SE2_XY``, …)."""
+        ``tag``: the file tag written back (``EDGE_SE2_XY``, …). Returns their keys ``(q,)`` (for
+        :meth:`remove_landmark_measurements`)."""
         landmarks = _ids(landmark_ids, "landmark measurements")
         z, w, offsets = check_landmark_measurements(self.group, kind, landmarks.shape[0], measurements, information, offsets)
         if kind == "prior":
@@ -307,7 +309,17 @@ class IncrementalOptimizer:
         for position, landmark in enumerate(landmarks.tolist()):
             if not self._is_landmark(landmark):
                 raise GraphError(f"landmark measurement #{position}: landmark id {landmark} is not in the graph")
-        self._batch.landmark_measurements.append((kind, str(tag), poses, landmarks, z.copy(), w.copy(), offsets))
+        start = self._landmarks.next_key + sum(len(m[3]) for m in self._batch.landmark_measurements)
+        keys = np.arange(start, start + landmarks.shape[0], dtype=np.int64)
+        self._batch.landmark_measurements.append((kind, str(tag), poses, landmarks, z.copy(), w.copy(), offsets, keys))
+        return keys.copy()
+
+    def remove_landmark_measurements(self, keys) -> None:
+        """Stage the removal of landmark measurements by key (a data association found wrong); applied at
+        :meth:`update`, before the batch's new measurements."""
+        keys = _ids(keys, "landmark measurements to remove")
+        self._landmarks.find(np.concatenate(self._batch.landmark_removals + [keys]))  # checks, unchanged on error
+        self._batch.landmark_removals.append(keys)
 
     def remove_edges(self, keys) -> None:
         """Stage the removal of edges by key (e.g. a loop closure found wrong); applied at :meth:`update`."""

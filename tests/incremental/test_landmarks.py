@@ -169,3 +169,51 @@ def test_a_landmark_without_position_or_measurement_is_refused_at_update():
 def test_sim3_has_no_landmarks():
     with pytest.raises(GraphError, match="Sim"):
         IncrementalOptimizer(SIM3).add_landmarks([0], [[0.0, 0.0, 0.0]])
+
+
+def _with_wrong_association(case="SE2-position", seed=5):
+    """A replayed graph, then one more measurement of landmark 0 from the last pose, far from where it is."""
+    graph = _graph(case, seed=seed, poses=20, landmarks=6)
+    opt = replay(graph).optimizer
+    clean = opt.cost()
+    keys = opt.add_landmark_measurements("position", [int(opt.ids[-1])], [int(opt.landmark_ids[0])], [[4.0, -3.0]],
+                                         np.eye(2)[None] * 400)
+    opt.update()
+    return graph, opt, keys, clean
+
+
+def test_removing_a_wrong_association_returns_to_the_optimum_without_it():
+    graph, opt, keys, clean = _with_wrong_association()
+    assert opt.cost() > clean + 1.0  # the wrong measurement pulled the estimate
+    opt.remove_landmark_measurements(keys)
+    info = opt.update()
+    assert info.kind == "full" and opt.cost() == pytest.approx(clean, rel=1e-7)
+    assert opt.graph().landmarks.num_measurements == graph.landmarks.num_measurements
+    assert cost_excess(opt)[3] <= TOLERANCE
+
+
+def test_removing_the_only_sightings_that_join_two_components_splits_the_gauge():
+    graph = _split_by_landmarks()
+    opt = IncrementalOptimizer(SE2)
+    replay(graph, optimizer=opt)
+    assert opt.held().sum() == 1
+    model = opt.graph().landmarks
+    pose, landmark = np.concatenate([f.pose for f in model.observations]), np.concatenate([f.landmark for f in model.observations])
+    first_chain = pose < 6
+    shared = np.intersect1d(landmark[first_chain], landmark[~first_chain])
+    (family,) = opt._landmarks.families.values()
+    keys = family.keys.view[np.isin(family.landmark.view, shared) & (family.pose.view < 6)]  # the first observers
+    opt.remove_landmark_measurements(keys)
+    opt.update()
+    assert opt.held().sum() == 2 == held_vertices(opt.graph()).sum()
+    assert cost_excess(opt)[3] <= TOLERANCE
+
+
+def test_an_unknown_or_repeated_measurement_key_changes_nothing():
+    graph, opt, keys, _ = _with_wrong_association()
+    before = _state(opt)
+    with pytest.raises(GraphError, match="no measurement with key 999"):
+        opt.remove_landmark_measurements([999])
+    with pytest.raises(GraphError, match="given twice"):
+        opt.remove_landmark_measurements([keys[0], keys[0]])
+    assert opt.update().kind == "none" and _state(opt) == before
