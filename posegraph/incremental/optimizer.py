@@ -107,6 +107,7 @@ class IncrementalOptimizer:
         self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
         self._terms = EdgeTerms()
+        self._unary: float | None = None  # the priors' and landmark measurements' part of the cost, when known
         self._batch = _Batch(group.matrix_size, group.dim)
         self.last_update: UpdateInfo | None = None
         self._version = 0
@@ -149,10 +150,13 @@ class IncrementalOptimizer:
         return self._store.poses.view[self._store.indices_of(_ids([vertex_id], "pose"), "pose")[0]].copy()
 
     def cost(self) -> float:
-        """The cost at the current estimate (from per-edge terms kept up to date, priors evaluated)."""
+        """The cost at the current estimate (from per-edge terms kept up to date; the priors' and landmark
+        measurements' part evaluated once per change of it)."""
         total = 0.5 * self._terms.total()
         if self._store.num_priors or self._landmarks.count:
-            total += self._unary_cost()
+            if self._unary is None:
+                self._unary = self._unary_cost()
+            total += self._unary
         return total
 
     def _unary_cost(self) -> float:
@@ -346,6 +350,9 @@ class IncrementalOptimizer:
         else:
             touched, landmark_work = commit_batch(self, batch)
             kind, vertices, iterations = self._solve(touched, landmark_work)
+            if kind != "exact" or batch.pose_priors or batch.position_priors:
+                # an exact update moves nothing and adds landmark terms that vanish (first sightings); else re-evaluate
+                self._unary = None
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
         self.last_update = info
         self._version += 1  # a covariance factorised before this update is stale
@@ -427,6 +434,7 @@ class IncrementalOptimizer:
         result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params,
                           initial_points=points)
         self._store.poses.view[:] = result.poses
+        self._unary = None
         if points is not None:
             self._landmarks.positions.view[:] = result.points
         self._version += 1  # the estimate changed: a covariance factorised before is stale

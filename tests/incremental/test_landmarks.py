@@ -217,3 +217,19 @@ def test_an_unknown_or_repeated_measurement_key_changes_nothing():
     with pytest.raises(GraphError, match="given twice"):
         opt.remove_landmark_measurements([keys[0], keys[0]])
     assert opt.update().kind == "none" and _state(opt) == before
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_cost_after_every_update_is_the_cost_of_the_graph_so_far(case):
+    from posegraph.solve.residuals import cost
+
+    graph = _graph(case, seed=6)
+    checked = []
+
+    def check(result, number):
+        opt = result.optimizer
+        so_far = opt.graph()
+        checked.append(abs(opt.cost() - cost(so_far, so_far.poses, so_far.landmarks.positions if so_far.landmarks else None)))
+
+    replay(graph, progress=check)
+    assert len(checked) == graph.num_vertices and max(checked) <= 1e-9
