@@ -63,7 +63,7 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
     Returns ``(touched, landmark_work)``: the touched vertices, and whether a landmark measurement needs
     a solve (:func:`posegraph.incremental.landmark_commit.commit_landmarks`).
     """
-    from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks, remove_landmark_measurements
+    from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks
 
     store, components = opt._store, opt._components
     touched: list[int] = []
@@ -91,8 +91,8 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
             touched += vertices.tolist()
             for v in vertices.tolist():
                 touched += components.anchor_by_prior(v, store.fixed.view)
-    if batch.landmark_removals:
-        touched += remove_landmark_measurements(opt, batch)
+    if batch.landmark_removals:  # before the batch's new measurements go in
+        touched += opt._landmarks.remove(np.concatenate(batch.landmark_removals)).tolist()
     released, landmark_work = commit_landmarks(opt, batch) if batch.landmarks or batch.landmark_measurements else ([], False)
     touched += released
     landmark_work = landmark_work or bool(batch.landmark_removals)

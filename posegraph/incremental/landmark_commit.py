@@ -21,7 +21,7 @@ from posegraph.init.landmarks import initialize_landmarks
 from posegraph.model.graph import PoseGraph
 from posegraph.model.landmarks import Landmarks, Observations
 
-__all__ = ["check_placeable", "commit_landmarks", "rejoin_through_landmarks", "remove_landmark_measurements"]
+__all__ = ["check_placeable", "commit_landmarks", "rejoin_through_landmarks"]
 
 EXACT_KINDS = ("position", "bearing_range")
 """Kinds of which one measurement determines a point exactly (a bearing gives a ray)."""
@@ -53,12 +53,6 @@ def commit_landmarks(opt, batch) -> tuple[list[int], bool]:
     exact = _place_new(opt, first_new, rows)
     released = _join(opt, rows)
     return released, any(not _all_exact(landmark, exact, first_new) for _, _, landmark in rows)
-
-
-def remove_landmark_measurements(opt, batch) -> list[int]:
-    """Drop the measurements ``batch`` retracts (before its new ones go in); the poses that made them."""
-    keys = np.concatenate(batch.landmark_removals)
-    return opt._landmarks.remove(keys).tolist()
 
 
 def _all_exact(landmark: np.ndarray, exact: np.ndarray, first_new: int) -> bool:
