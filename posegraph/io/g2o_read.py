@@ -490,7 +490,8 @@ def _vertices_named_by_edges(edges: _Measurements, path: str, extra: np.ndarray)
     note = (
         f"{path}: the file has no vertex lines, so the initial values are missing: created the {n} vertices "
         "its edges name at the identity pose; start from an initialiser (--init chordal, the default, or "
-        "--init odometry; posegraph.init.initialize), not from the file (--init file)"
+        "--init odometry; posegraph.init.initialize), not from the file (--init file); replay places each "
+        "vertex by its first edge"
     )
     return vertices, note
 
