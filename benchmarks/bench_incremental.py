@@ -4,7 +4,7 @@ Each graph is replayed in vertex-id order, one new pose per update with every ed
 in, by both tools, each run in a fresh process (its peak memory is that process's ``ru_maxrss``),
 the tools alternating from round to round:
 
-* ours: :func:`posegraph.incremental.replay.replay` with default settings (``tolerance=1e-8``);
+* ours: :func:`posegraph.incremental.replay.replay` with default settings (``tolerance=1e-7``, ``DEFAULT_TOLERANCE``);
 * gtsam: ``ISAM2`` with default ``ISAM2Params`` (QR factorisation when Cholesky throws, as the issue's
   reference runs did in 2D), one ``update`` and one ``calculateEstimate`` per new pose, a tight prior on
   the first pose in place of our anchor (a loose one, ``LOOSE_PRIOR_SIGMA``, on a pose with no edge to the

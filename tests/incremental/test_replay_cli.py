@@ -35,3 +35,21 @@ def test_replay_refuses_bad_options(shared_dataset, tmp_path):
     path = shared_dataset("intel")
     assert main(["replay", str(path), "--tolerance", "0"]) == 2
     assert main(["replay", str(path), "-o", str(path)]) == 2
+
+
+def test_the_help_states_the_optimisers_default_tolerance(shared_dataset, tmp_path):
+    """The CLI leaves --tolerance to the optimiser (help must come without numpy), so its help text
+    repeats the default: it must be the library's."""
+    import argparse
+
+    from posegraph.cli import replay as replay_cli
+    from posegraph.incremental.optimizer import DEFAULT_TOLERANCE
+
+    parser = argparse.ArgumentParser()
+    replay_cli.add_arguments(parser)
+    action = next(a for a in parser._actions if "--tolerance" in a.option_strings)
+    stated = float(action.help.split("(default ")[1].split(";")[0])
+    assert stated == DEFAULT_TOLERANCE and action.default is None
+    report = tmp_path / "r.json"
+    assert main(["replay", str(shared_dataset("intel")), "--batch-size", "400", "-q", "--report", str(report)]) == 0
+    assert json.loads(report.read_text())["incremental"]["tolerance"] == DEFAULT_TOLERANCE
