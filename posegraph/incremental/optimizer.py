@@ -6,17 +6,17 @@ Design (``docs/incremental.md``):
   is put where that edge says (``X_j = X_i Z``), breadth first over the batch's edges. An edge used so
   (a *tree* edge) has a zero residual and adds nothing to the gradient: a batch made only of such edges
   (odometry) leaves the estimate at the optimum of the new graph exactly, with no linear algebra.
-* **Gauss-Newton where the update acts.** Every other edge, a prior, a removed edge or an anchor
-  released by a join *touches* its vertices. Gauss-Newton runs on the free vertices within ``r`` rings
-  of the touched ones (:mod:`posegraph.incremental.region`), the rest held, until the region's Newton
-  decrement is below ``tolerance · cost / 100``. Then the outermost ring is read: if every vertex of it
-  moved by a whitened ``Δᵀ H_vv Δ`` of at most ``tolerance · cost · wildfire``, the disturbance died
-  out inside the region and the update ends; else ``r`` doubles and the solve continues on the larger
-  region. A region that reaches more than ``full_fraction`` of the free vertices is solved by the batch
-  solver on the whole graph (:func:`posegraph.solve.optimize`, warm).
+* **Gauss-Newton on the whole graph, its analysis held** (:mod:`posegraph.incremental.whole`, the
+  default). Every other edge, a prior, a removed edge or an anchor released by a join runs Gauss-Newton
+  on the whole graph with the block pattern and CHOLMOD's symbolic factorisation kept from update to
+  update; a fresh step that raises the cost even halved six times, or 30 steps short of the tolerance,
+  hand the update to the
+  batch solver (:func:`posegraph.solve.optimize`, LM, warm). ``whole=False`` solves growing regions
+  around the touched vertices instead (:mod:`posegraph.incremental.region`: rings doubled until the
+  outermost one barely moves, ``wildfire``; the batch solver past ``full_fraction`` of the graph).
 * **Stated tolerance.** Default ``tolerance = 1e-7`` (:data:`DEFAULT_TOLERANCE`): after each update the cost
   exceeds the optimum of the graph so far by at most about ``tolerance`` relative (measured at most 1e-6 in
-  ``benchmarks/bench_incremental.py``; the region test is a heuristic, not a bound). ``verify=True``
+  ``benchmarks/bench_incremental.py``; the Newton decrement is the excess to second order, not a bound). ``verify=True``
   checks every update that did any work with a warm batch solve of the whole graph (its own test, the
   Newton decrement, stops it at once when the estimate is already optimal): exact, O(graph) per update.
   Larger ``tolerance`` (1e-4) is the speed setting.
