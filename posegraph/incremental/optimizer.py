@@ -10,8 +10,7 @@ Design (``docs/incremental.md``):
   default). Every other edge, a prior, a removed edge or an anchor released by a join runs Gauss-Newton
   on the whole graph with the block pattern and CHOLMOD's symbolic factorisation kept from update to
   update; a fresh step that raises the cost even halved six times, or 30 steps short of the tolerance,
-  hand the update to the
-  batch solver (:func:`posegraph.solve.optimize`, LM, warm). ``whole=False`` solves growing regions
+  hand the update to the batch solver (:func:`posegraph.solve.optimize`, LM, warm). ``whole=False`` solves growing regions
   around the touched vertices instead (:mod:`posegraph.incremental.region`: rings doubled until the
   outermost one barely moves, ``wildfire``; the batch solver past ``full_fraction`` of the graph).
 * **Stated tolerance.** Default ``tolerance = 1e-7`` (:data:`DEFAULT_TOLERANCE`): after each update the cost
