@@ -64,8 +64,12 @@ def _gtsam_example(filename: str) -> Path | None:
 
 
 def load(name: str):
+    """The graph ``name`` (one of GRAPHS); ``NAME:N``, its first ``N`` vertices in id order (:func:`prefix`)."""
     from posegraph.io.g2o import read_g2o
 
+    if ":" in name:
+        name, count = name.split(":")
+        return prefix(load(name), int(count))
     if name == "synthetic100k":
         sys.path.insert(0, str(ROOT))
         from datasets.synthetic import generate
@@ -246,7 +250,7 @@ def main(argv=None) -> int:
         return 0
     rows = []
     for name in args.graphs:
-        if name != "synthetic100k" and graph_path(name) is None:
+        if name.split(":")[0] != "synthetic100k" and graph_path(name.split(":")[0]) is None:
             print(f"{name:>15}: skipped (no {name}.g2o in {SHARED} or {SESYNC})", flush=True)
             continue
         for repeat in range(args.repeats):

@@ -148,3 +148,40 @@ def test_chord_steps_are_skipped_while_they_fail_and_probed():
     for _ in range(20):
         whole._chord_outcome(True)
     assert all(whole._chord_pays() for _ in range(PROBE))
+
+
+def _drifted_chain_and_closure(group, n, sigma, rng):
+    """An optimiser holding an odometry chain of ``n`` poses measured with noise ``sigma`` (it drifts), and
+    the loop closure first → last (the true relative pose) staged; returns ``(opt, closure's ½χ² at the
+    chain's estimate)``."""
+    from posegraph.solve.residuals import cost
+
+    truth = _truth(rng, group, n)
+    opt = IncrementalOptimizer(group)
+    opt.add_vertices(np.arange(n), truth)
+    z = _noisy(rng, group, group.between(truth[:-1], truth[1:]), sigma)
+    opt.add_edges(np.arange(n - 1), np.arange(1, n), z, _information(group, n - 1))
+    assert opt.update().kind == "exact"
+    closure = group.between(truth[:1], truth[-1:])
+    opt.add_edges([0], [n - 1], closure, _information(group, 1))
+    chain = opt.graph()
+    alone = PoseGraph(ids=chain.ids, poses=chain.poses, edge_from=np.array([0]), edge_to=np.array([n - 1]),
+                      measurements=closure, information=_information(group, 1), fixed=chain.fixed, group=group)
+    return opt, cost(alone, chain.poses)
+
+
+def test_a_loop_closure_over_a_long_drifted_chain_goes_to_the_batch_solver():
+    """Its new term multiplies the cost by orders of magnitude (χ² ≫ DRASTIC_CHI2): the update is the batch
+    LM's, at the batch optimum; a loop closure that agrees with the chain (small drift) stays Gauss-Newton's.
+    The chain alone is at its optimum (cost ~0), so the ratio DRASTIC alone would call both drastic."""
+    from posegraph.incremental.optimizer import DRASTIC_CHI2
+
+    rng = np.random.default_rng(5)
+    drifted, added = _drifted_chain_and_closure(SE2, 300, 0.05, rng)
+    assert drifted.cost() < 1e-9 and added > DRASTIC_CHI2 * SE2.dim
+    assert drifted.update().kind == "full"
+    _, _, _, excess = cost_excess(drifted)
+    assert excess <= 1e-6
+    calm, added = _drifted_chain_and_closure(SE2, 300, 1e-3, rng)
+    assert calm.cost() < 1e-9 and 0 < added < DRASTIC_CHI2 * SE2.dim
+    assert calm.update().kind == "whole"
