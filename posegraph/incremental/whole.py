@@ -389,8 +389,8 @@ class WholeGraph:
             self._analyse(held)
         objective, poses = self._objective(held), self.store.poses.view
         kept = self.last.extended(objective, poses)
-        if kept is not None:
-            blocks = replace(kept[1], weights=None)
+        if kept is not None:  # without a loss its Hessian blocks may be made already
+            blocks = kept[1] if kept[1].weights is None else replace(kept[1], weights=None)
         else:
             objective = Objective(objective.graph, None)
             blocks = objective.linearize(poses, objective.evaluate(poses))

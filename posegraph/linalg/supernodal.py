@@ -113,8 +113,10 @@ class SupernodalPaths:
         sizes_ok = paths.super[0] == 0 and paths.super[-1] == n and paths.pi[-1] == fields["ssize"]
         if not (sizes_ok and paths.px[-1] <= fields["xsize"] and np.all(np.diff(paths.super) > 0)):
             return None
-        if not np.array_equal(np.sort(paths.perm), np.arange(n)) or np.any(paths.parent[paths.parent >= 0] <= np.flatnonzero(paths.parent >= 0)):
-            return None
+        if not (paths.perm.min() >= 0 and paths.perm.max() < n and np.all(np.bincount(paths.perm, minlength=n) == 1)):
+            return None  # not a permutation
+        if np.any(paths.parent[paths.parent >= 0] <= np.flatnonzero(paths.parent >= 0)):
+            return None  # not postordered: the forward solve visits supernodes in index order
         return paths
 
     def _nodes(self, starts: np.ndarray) -> np.ndarray:
