@@ -10,9 +10,17 @@ peak memory that process's ``ru_maxrss``):
   start (``batch N`` gives the batch solve's own peak memory), after one small warm-up solve (imports), each
   timed solve ordering its graph itself (the cache of the last order, ``cholmod._LAST_ORDERS``, cleared:
   the batch solve after a drastic update, itself a batch solve, would otherwise reuse its order).
-* ``covariance N``: the manhattan graph of ``N`` poses (loop closures kept) put in at once, then the
-  latest pose's marginal covariance (``marginal_covariance``), timed, and compared with
-  ``posegraph.analysis.covariance.marginal_covariances`` of the same graph.
+* ``covariance N``: what a front end pays for the latest pose's marginal covariance
+  (``marginal_covariance``) on the manhattan graph of ``N`` poses (loop closures kept): all but the last
+  pose put in at once (a solve), the first call after it and a repeated one; then the last pose by its
+  odometry edge alone (an ``exact`` update) and the first call after it; then a loop closure from it to
+  the pose 199 back (a solve) and the first call after it, and a pair's joint covariance. Then a replay
+  of the last 500 poses one per update (each with its edges, loop closures included) from the rest put
+  in at once, asking the latest pose's covariance after every update (median / p99 of the call) and
+  again without asking (the totals side by side). Each covariance compared with
+  ``posegraph.analysis.covariance.marginal_covariances`` of the same graph (relative max difference).
+* ``covariance_gtsam N``: the same replay with gtsam's ISAM2 (default params, a prior of σ = 1e-6 on pose
+  0) and ``isam.marginalCovariance`` of the latest pose after every update.
 """
 
 from __future__ import annotations
@@ -111,34 +119,150 @@ def batch_memory(n: int) -> dict:
     return {"poses": n, "batch_s": time.perf_counter() - began, "batch_cost": float(result.final_cost), "peak_rss_mib": _peak()}
 
 
-def covariance(n: int) -> dict:
-    from posegraph.analysis.covariance import marginal_covariances
+def _optimizer_with(graph, count: int):
+    """An optimiser holding the first ``count`` poses of ``graph`` and the edges among them, put in at once."""
     from posegraph.incremental import IncrementalOptimizer
 
-    graph, _ = _route(n, loops=True)
     opt = IncrementalOptimizer(graph.group)
-    opt.add_vertices(graph.ids, graph.poses, graph.fixed)
-    opt.add_edges(graph.ids[graph.edge_from], graph.ids[graph.edge_to], graph.measurements, graph.information)
+    keep = np.maximum(graph.edge_from, graph.edge_to) < count
+    opt.add_vertices(graph.ids[:count], graph.poses[:count], graph.fixed[:count])
+    opt.add_edges(graph.ids[graph.edge_from[keep]], graph.ids[graph.edge_to[keep]], graph.measurements[keep],
+                  graph.information[keep])
     opt.update()
-    last = int(opt.ids[-1])
-    opt.marginal_covariance(last)  # warm (imports)
-    times = []
-    for _ in range(5):
-        began = time.perf_counter()
-        ours = opt.marginal_covariance(last)
-        times.append(time.perf_counter() - began)
+    return opt
+
+
+def _timed(call, *args) -> tuple[float, object]:
+    began = time.perf_counter()
+    value = call(*args)
+    return time.perf_counter() - began, value
+
+
+def _difference(opt, ours: np.ndarray) -> float:
+    """Relative max difference of the latest pose's covariance against ``marginal_covariances`` of the same graph."""
+    from posegraph.analysis.covariance import marginal_covariances
+
     held = replace(opt.graph(), fixed=opt.held())
     reference = marginal_covariances(held, held.poses, np.array([held.num_vertices - 1]))[0]
-    difference = float(np.abs(ours - reference).max() / np.abs(reference).max())
-    return {"poses": n, "covariance_ms": 1e3 * float(np.median(times)), "relative_difference": difference,
-            "peak_rss_mib": _peak()}
+    return float(np.abs(ours - reference).max() / np.abs(reference).max())
+
+
+def _replay_tail(graph, start: int, ask: bool) -> dict:
+    """Poses ``start..n−1`` one per update (each with its edges to the poses in), the latest pose's
+    covariance asked after every update when ``ask``: per-call seconds by the kind of the update before it."""
+    opt = _optimizer_with(graph, start)
+    later = np.maximum(graph.edge_from, graph.edge_to)
+    updates, calls, kinds = [], [], []
+    for v in range(start, graph.num_vertices):
+        edges = np.flatnonzero(later == v)
+        began = time.perf_counter()
+        opt.add_vertices(graph.ids[v : v + 1], graph.poses[v : v + 1])
+        opt.add_edges(graph.ids[graph.edge_from[edges]], graph.ids[graph.edge_to[edges]], graph.measurements[edges],
+                      graph.information[edges])
+        kinds.append(opt.update().kind)
+        updates.append(time.perf_counter() - began)
+        if ask:
+            calls.append(_timed(opt.marginal_covariance, int(graph.ids[v]))[0])
+    out = {"updates": len(updates), "update_total_s": float(np.sum(updates)), "kinds": {k: kinds.count(k) for k in set(kinds)}}
+    if ask:
+        c, exact = 1e3 * np.array(calls), np.array([k == "exact" for k in kinds])
+        out.update(call_total_s=float(c.sum() / 1e3), call_median_ms=float(np.median(c)), call_p99_ms=float(np.percentile(c, 99)),
+                   call_max_ms=float(c.max()), after_exact_median_ms=float(np.median(c[exact])),
+                   after_solve_median_ms=float(np.median(c[~exact])) if (~exact).any() else None,
+                   factorizations=opt._covariances.factorizations,
+                   final_relative_difference=_difference(opt, opt.marginal_covariance(int(graph.ids[-1]))))
+    return out
+
+
+def covariance(n: int) -> dict:
+    """What a front end pays for the latest pose's covariance at ``n`` poses (module docstring)."""
+    graph, truth = _route(n, loops=True)
+    opt = _optimizer_with(graph, n - 1)  # all but the last pose at once (a solve)
+    last = int(opt.ids[-1])
+    first_after_solve, _ = _timed(opt.marginal_covariance, last)
+    repeated = [_timed(opt.marginal_covariance, last)[0] for _ in range(5)]
+    later = np.maximum(graph.edge_from, graph.edge_to)
+    odometry = np.flatnonzero((later == n - 1) & (np.abs(graph.edge_from - graph.edge_to) == 1))
+    opt.add_vertices(graph.ids[-1:], graph.poses[-1:])  # (a) the last pose by its odometry edge alone
+    opt.add_edges(graph.ids[graph.edge_from[odometry]], graph.ids[graph.edge_to[odometry]], graph.measurements[odometry],
+                  graph.information[odometry])
+    exact_kind = opt.update().kind
+    first_after_odometry, ours = _timed(opt.marginal_covariance, n - 1)
+    odometry_difference = _difference(opt, ours)
+    z = graph.group.between(truth[n - 200 : n - 199], truth[n - 1 :])  # (b) a loop closure to a pose 199 back
+    opt.add_edges(graph.ids[n - 200 : n - 199], graph.ids[n - 1 :], z, graph.information[:1])
+    loop_update_s, info = _timed(opt.update)
+    first_after_loop, ours = _timed(opt.marginal_covariance, n - 1)
+    pair_s, _ = _timed(opt.joint_covariance, [n - 1, n - 200])
+    result = {"poses": n, "first_call_after_bulk_solve_ms": 1e3 * first_after_solve,
+              "repeated_call_ms": 1e3 * float(np.median(repeated)), "odometry_update_kind": exact_kind,
+              "first_call_after_odometry_ms": 1e3 * first_after_odometry, "odometry_relative_difference": odometry_difference,
+              "loop_update_kind": info.kind, "loop_update_s": loop_update_s, "first_call_after_loop_ms": 1e3 * first_after_loop,
+              "pair_after_loop_ms": 1e3 * pair_s, "loop_relative_difference": _difference(opt, ours)}
+    tail = min(500, n // 4)
+    result["replay_asking"] = _replay_tail(graph, n - tail, ask=True)
+    result["replay_not_asking"] = _replay_tail(graph, n - tail, ask=False)
+    result["peak_rss_mib"] = _peak()
+    return result
+
+
+def covariance_gtsam(n: int) -> dict:
+    """ISAM2 on the same graph: all but the last 500 poses in one update, then one pose per update with
+    ``marginalCovariance`` of the latest after each (Cholesky; QR when it throws, as bench_incremental)."""
+    try:
+        return dict(_isam2_tail(n, None), factorization="CHOLESKY")
+    except RuntimeError as err:
+        if "ndetermin" not in str(err):
+            raise
+        return dict(_isam2_tail(n, "QR"), factorization="QR")
+
+
+def _isam2_tail(n: int, factorization) -> dict:
+    import gtsam
+
+    from benchmarks.bench_incremental import _gtsam_types
+
+    graph, _ = _route(n, loops=True)
+    _, between, prior, to_gtsam, _ = _gtsam_types(graph)
+    params = gtsam.ISAM2Params()
+    if factorization is not None:
+        params.setFactorization(factorization)
+    isam = gtsam.ISAM2(params)
+    later = np.maximum(graph.edge_from, graph.edge_to)
+    noise = [gtsam.noiseModel.Gaussian.Information(w) for w in graph.information]
+    start = n - min(500, n // 4)
+
+    def batch(vertices, edges):
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for e in edges.tolist():
+            factors.add(between(int(graph.edge_from[e]), int(graph.edge_to[e]), to_gtsam(graph.measurements[e]), noise[e]))
+        for v in vertices:
+            values.insert(v, to_gtsam(graph.poses[v]))
+        if vertices[0] == 0:
+            factors.add(prior(0, to_gtsam(graph.poses[0]), gtsam.noiseModel.Isotropic.Sigma(graph.group.dim, 1e-6)))
+        isam.update(factors, values)
+
+    batch(list(range(start)), np.flatnonzero(later < start))
+    updates, calls = [], []
+    for v in range(start, n):
+        began = time.perf_counter()
+        batch([v], np.flatnonzero(later == v))
+        isam.calculateEstimate()
+        updates.append(time.perf_counter() - began)
+        calls.append(_timed(isam.marginalCovariance, v)[0])
+    repeated = [_timed(isam.marginalCovariance, n - 1)[0] for _ in range(5)]
+    c = 1e3 * np.array(calls)
+    return {"poses": n, "updates": len(updates), "update_total_s": float(np.sum(updates)), "call_total_s": float(c.sum() / 1e3),
+            "call_median_ms": float(np.median(c)), "call_p99_ms": float(np.percentile(c, 99)), "call_max_ms": float(c.max()),
+            "repeated_call_ms": 1e3 * float(np.median(repeated)), "peak_rss_mib": _peak()}
 
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--worker":
         what, n = argv[1], int(argv[2])
-        print(json.dumps({"route": route, "batch": batch_memory, "covariance": covariance}[what](n)))
+        jobs = {"route": route, "batch": batch_memory, "covariance": covariance, "covariance_gtsam": covariance_gtsam}
+        print(json.dumps(jobs[what](n)))
         return 0
     jobs = [a.split(":") for a in argv] or [["route", "100000"], ["batch", "100000"], ["covariance", "20000"]]
     for what, n in jobs:

@@ -17,8 +17,9 @@ import numpy as np
 __all__ = ["commit_batch"]
 
 
-def _place(store, new: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Poses of the new vertices by composition along the new edges; ``(b,)`` bool: the tree edges."""
+def _place(store, new: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, list]:
+    """Poses of the new vertices by composition along the new edges; ``(b,)`` bool: the tree edges, and
+    ``[(child, parent, edge)]`` in placement order (``edge`` the batch's index of the tree edge)."""
     poses, group, ids = store.poses.view, store.group, store.ids.view
     incident: dict[int, list[int]] = {int(v): [] for v in new.tolist()}
     for e, (a, b) in enumerate(zip(i.tolist(), j.tolist())):
@@ -28,6 +29,7 @@ def _place(store, new: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray) 
             incident[b].append(e)
     placed = set(incident) - {v for v in incident if not store.fixed.view[v]}  # FIX vertices keep their pose
     tree = np.zeros(i.shape[0], dtype=bool)
+    order = []
     queue = deque(sorted({a for a, b in zip(i.tolist(), j.tolist()) if a not in incident or a in placed}
                          | {b for a, b in zip(i.tolist(), j.tolist()) if b not in incident or b in placed}))
     remaining = sorted(incident, key=lambda v: ids[v])
@@ -42,10 +44,11 @@ def _place(store, new: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray) 
                 poses[w] = poses[u] @ z[e] if a == u else poses[u] @ group.inverse(z[e])
                 placed.add(w)
                 tree[e] = True
+                order.append((w, u, e))
                 queue.append(w)
         remaining = [v for v in remaining if v not in placed]
         if not remaining:
-            return tree
+            return tree, order
         placed.add(remaining[0])  # the first of a new group keeps its given pose
         queue.append(remaining[0])
 
@@ -57,16 +60,19 @@ def _edges_of(u: int, i, j, incident: dict, store) -> list[int]:
     return np.flatnonzero((i == u) | (j == u)).tolist()
 
 
-def commit_batch(opt, batch) -> tuple[list[int], bool]:
+def commit_batch(opt, batch) -> tuple[list[int], bool, np.ndarray]:
     """Add ``batch`` (a checked :class:`~posegraph.incremental.optimizer._Batch`) to ``opt``.
 
-    Returns ``(touched, landmark_work)``: the touched vertices, and whether a landmark measurement needs
-    a solve (:func:`posegraph.incremental.landmark_commit.commit_landmarks`).
+    Returns ``(touched, landmark_work, placed)``: the touched vertices, whether a landmark measurement
+    needs a solve (:func:`posegraph.incremental.landmark_commit.commit_landmarks`), and ``placed``
+    ``(a, 3)`` int64: ``(child, parent, edge position)`` of each tree edge (vertex indices, store edge
+    position), in placement order (a parent before its children).
     """
     from posegraph.incremental.landmark_commit import commit_landmarks, rejoin_through_landmarks
 
     store, components = opt._store, opt._components
     touched: list[int] = []
+    placed = np.zeros((0, 3), dtype=np.int64)
     if batch.ids:
         ids, poses, fixed = (np.concatenate(x) for x in (batch.ids, batch.poses, batch.fixed))
         new = store.add_vertices(ids, poses, fixed)
@@ -83,7 +89,8 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
         opt._terms.keep(keep)
         opt._whole.reset()  # the scatter positions follow the edge order
     if batch.edges:
-        touched += _add_edges(opt, batch, new)
+        more, placed = _add_edges(opt, batch, new)
+        touched += more
     for kind, add in (("pose_priors", store.add_pose_priors), ("position_priors", store.add_position_priors)):
         for ids, values, information in getattr(batch, kind):
             vertices = store.indices_of(ids, "prior")
@@ -100,16 +107,17 @@ def commit_batch(opt, batch) -> tuple[list[int], bool]:
         touched += components.rebuild(store.ids.view, store.fixed.view, store.edge_from.view, store.edge_to.view,
                                       np.flatnonzero(store.prior_vertex_mask()))
         touched += rejoin_through_landmarks(opt)
-    return list(dict.fromkeys(touched)), landmark_work
+    return list(dict.fromkeys(touched)), landmark_work, placed
 
 
-def _add_edges(opt, batch, new: np.ndarray) -> list[int]:
+def _add_edges(opt, batch, new: np.ndarray) -> tuple[list[int], np.ndarray]:
     store, components = opt._store, opt._components
     i = store.indices_of(np.concatenate([e[0] for e in batch.edges]), "edge")
     j = store.indices_of(np.concatenate([e[1] for e in batch.edges]), "edge")
     z = np.concatenate([e[2] for e in batch.edges])
     w = np.concatenate([e[3] for e in batch.edges])
-    tree = _place(store, new, i, j, z) if new.size else np.zeros(i.shape[0], dtype=bool)
+    tree, order = _place(store, new, i, j, z) if new.size else (np.zeros(i.shape[0], dtype=bool), [])
+    placed = np.array(order, dtype=np.int64).reshape(-1, 3) + [0, 0, store.num_edges]
     store.add_edges(i, j, z, w)
     opt._terms.append_zeros(i.shape[0])  # a tree edge's residual vanishes
     if not tree.all():  # the others' terms now (a solve refreshes them, but none runs between two held vertices)
@@ -122,4 +130,4 @@ def _add_edges(opt, batch, new: np.ndarray) -> list[int]:
     # a new vertex released from being its own anchor was placed by composition (a tree edge): it needs no
     # solve; were it joined by a non-tree edge only, that edge's ends are touched already
     first_new = int(new[0]) if new.size else store.num_vertices
-    return touched + [v for v in released if v < first_new]
+    return touched + [v for v in released if v < first_new], placed

@@ -30,6 +30,7 @@ import numpy as np
 
 from posegraph.errors import GraphError
 from posegraph.incremental.components import Components
+from posegraph.incremental.covariance import Covariances
 from posegraph.incremental.landmark_store import LandmarkStore, check_landmark_measurements
 from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
 from posegraph.incremental.store import EdgeTerms, GraphStore, check_information, check_poses
@@ -119,6 +120,7 @@ class IncrementalOptimizer:
         self.whole = bool(whole)
         self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
+        self._covariances = Covariances(self._store, self._whole, lambda: self._components.held, self.held)
         self._terms = EdgeTerms()
         self._unary: float | None = None  # the priors' and landmark measurements' part of the cost, when known
         self._batch = _Batch(group.matrix_size, group.dim)
@@ -358,17 +360,23 @@ class IncrementalOptimizer:
         start = time.perf_counter()
         check_placeable(self._batch)
         batch, self._batch = self._batch, _Batch(self.group.matrix_size, self.group.dim)
+        placed = np.zeros((0, 3), dtype=np.int64)
         if batch.empty():
             info = UpdateInfo("none", 0.0, 0, 0, self.cost())
         else:
-            touched, landmark_work = commit_batch(self, batch)
+            touched, landmark_work, placed = commit_batch(self, batch)
             kind, vertices, iterations = self._solve(touched, landmark_work)
             if kind != "exact" or batch.pose_priors or batch.position_priors:
                 # an exact update moves nothing and adds landmark terms that vanish (first sightings); else re-evaluate
                 self._unary = None
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
         self.last_update = info
-        self._version += 1  # a covariance factorised before this update is stale
+        self._version += 1
+        # pure odometry adds leaves (every covariance so far unchanged); anything else drops the covariances
+        odometry = info.kind in ("none", "exact") and not (batch.pose_priors or batch.position_priors or batch.removals
+                                                          or batch.landmarks or batch.landmark_measurements
+                                                          or batch.landmark_removals or self._landmarks.count)
+        self._covariances.advance(self._version - 1, self._version, placed if odometry else None)
         return info
 
     def _solve(self, touched: list[int], landmark_work: bool = False) -> tuple[str, int, int]:
@@ -472,21 +480,21 @@ class IncrementalOptimizer:
 
     def marginal_covariance(self, vertex_id: int) -> np.ndarray:
         """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
-        convention; zero for a held vertex)."""
+        convention; zero for a held vertex). Cached until the next update that is not pure odometry;
+        a pose added by odometry costs O(1) (:mod:`posegraph.incremental.covariance`)."""
         index = int(self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")[0])
-        held = self.held()
-        if held[index]:
-            return np.zeros((self.group.dim, self.group.dim))
         if self._landmarks.count:  # the held analysis is of poses only
             return self.joint_covariance([vertex_id])
-        # the held analysis of the whole graph: one factorisation per update, d solves per call
-        return self._whole.marginal(held, index, self._version)
+        return self._covariances.marginal(index, self._version)
 
     def joint_covariance(self, vertex_ids) -> np.ndarray:
-        """``(k·d, k·d)`` joint covariance of a few poses at the current estimate."""
+        """``(k·d, k·d)`` joint covariance of a few poses at the current estimate, blocks in the order given
+        (cached as :meth:`marginal_covariance`; with landmarks: :mod:`posegraph.analysis.covariance` on the whole graph)."""
         from posegraph.analysis.covariance import joint_covariance
 
         index = self._store.indices_of(_ids(vertex_ids, "covariance"), "covariance")
+        if not self._landmarks.count:
+            return self._covariances.joint(index.tolist(), self._version)
         graph = replace(self.graph(), fixed=self.held())
         points = None if graph.landmarks is None else graph.landmarks.positions
         return joint_covariance(graph, graph.poses, index, points=points)

@@ -32,6 +32,8 @@ after a fresh one: :meth:`WholeGraph.solve` returns False and the caller runs th
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
@@ -376,24 +378,21 @@ class WholeGraph:
         s = squared_norms(evaluation.residuals, objective.information)
         return s if self.loss is None else self.loss.rho(s)
 
-    def marginal(self, held: np.ndarray, vertex: int, version) -> np.ndarray:
-        """``(d, d)`` block of ``H⁻¹`` (H without loss weights, priors included: the convention of
-        :func:`posegraph.analysis.covariance.marginal_covariances`) of free ``vertex`` at the current poses.
-
-        One linearisation and numeric factorisation on the held analysis per ``version`` (the caller's
-        update count): further calls in the same version are d triangular solves each.
-        """
-        if getattr(self, "_factored_version", None) != version or not self._ready(held):
-            if not self._ready(held):
-                self._analyse(held)
-            objective, poses = Objective(self._objective(held).graph, None), self.store.poses.view
+    def factorize_unweighted(self, held: np.ndarray) -> None:
+        """Factorise H at the current poses on the held analysis, without loss weights and priors
+        included (the convention of :mod:`posegraph.analysis.covariance`), for
+        :mod:`posegraph.incremental.covariance`; :meth:`_solve_full` then applies ``H⁻¹`` (the left-out
+        edges' correction included). The last solve's final linearisation is reused when it is of these
+        poses (no priors: :class:`~posegraph.incremental.reuse.LastPoint`), its IRLS weights dropped (the
+        Jacobians do not depend on the loss). Raises NotPositiveDefiniteError."""
+        if not self._ready(held):
+            self._analyse(held)
+        objective, poses = self._objective(held), self.store.poses.view
+        kept = self.last.extended(objective, poses)
+        if kept is not None:  # without a loss its Hessian blocks may be made already
+            blocks = kept[1] if kept[1].weights is None else replace(kept[1], weights=None)
+        else:
+            objective = Objective(objective.graph, None)
             blocks = objective.linearize(poses, objective.evaluate(poses))
-            if self._fresh(blocks, held, self.store.num_vertices) is None:
-                raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")
-            self._factored_version = version
-        d = self.pattern.block_size
-        rows = d * int(self.pattern.variable_of[vertex]) + np.arange(d)
-        unit = np.zeros((self.pattern.dimension, d))
-        unit[rows, np.arange(d)] = 1.0
-        block = self._solve_full(unit)[rows]
-        return 0.5 * (block + block.T)
+        if self._fresh(blocks, held, self.store.num_vertices) is None:
+            raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")

@@ -182,6 +182,7 @@ class SparseCholesky:
         self._analyse(permutation)
         self._factorized = False
         self._permutation = None
+        self._paths = None  # SupernodalPaths of the last numeric factor, read on demand
 
     def _analyse(self, permutation) -> None:
         cholmod = self._cholmod
@@ -224,6 +225,7 @@ class SparseCholesky:
             raise ValueError(f"data must have shape ({self.nnz},), got {data.shape}")
         self._factorized = False
         self._permutation = None
+        self._paths = None  # views of the factor CHOLMOD is about to overwrite
         if not np.isfinite(data).all():
             raise NotPositiveDefiniteError("matrix has non-finite entries")
         self._matrix.V = matrix(data if self._gather is None else data[self._gather])
@@ -251,6 +253,23 @@ class SparseCholesky:
         if rhs.ndim not in (1, 2) or rhs.shape[0] != self.n:
             raise ValueError(f"rhs must have shape ({self.n},) or ({self.n}, k), got {rhs.shape}")
         return self._apply(rhs, 0)
+
+    def unit_forward(self, columns) -> np.ndarray:
+        """``Y`` ``(r, c)`` with ``Eᵀ A⁻¹ E = YᵀY`` for the unit columns ``E`` ``(n, c)`` at unknowns ``columns``:
+        the rows of ``L⁻¹ P E`` on the elimination-tree paths of ``columns``
+        (:class:`posegraph.linalg.supernodal.SupernodalPaths`); where the factor cannot be read, all
+        ``n`` rows by cvxopt's dense solves (``sys=7``: ``P b``, then ``sys=4``: ``L⁻¹ b``)."""
+        from posegraph.linalg.supernodal import SupernodalPaths
+
+        self._check_factorized()
+        columns = np.asarray(columns, dtype=np.int64)
+        if self._paths is None:
+            self._paths = SupernodalPaths.read(self._symbolic, self.n) or False
+        if self._paths:
+            return self._paths.forward(columns)
+        unit = np.zeros((self.n, columns.shape[0]))
+        unit[columns, np.arange(columns.shape[0])] = 1.0
+        return self._apply(self._apply(unit, 7), 4)
 
     def _apply(self, rhs: np.ndarray, system: int) -> np.ndarray:
         """cvxopt's ``solve(F, B, sys=system)`` on a copy of ``rhs`` ``(n,)`` or ``(n, k)``."""
@@ -302,6 +321,7 @@ class SparseCholesky:
     def close(self) -> None:
         """Drop the factor and the copy of the matrix now (otherwise when the object is collected)."""
         self._factorized = False
+        self._paths = None
         self._symbolic = None
         self._matrix = None
 
