@@ -207,6 +207,8 @@ class Covariances:
         on a factorisation at the current poses covering them (made here at most once per change, unless
         the analysis was redone or a pose asked came after it)."""
         whole = self.whole
+        if whole.current is not None and whole.current[0] == whole.factorizations and self.factored is None:
+            self.factored = (whole.factor, whole.factorizations, whole.current[1])  # the solve ended on one
         if self.factored is None or self.factored[:2] != (whole.factor, whole.factorizations) or max(vertices) >= self.factored[2]:
             whole.factorize_unweighted(self.held_mask())
             self.factored = (whole.factor, whole.factorizations, self.store.num_vertices)

@@ -469,6 +469,7 @@ class IncrementalOptimizer:
         result = optimize(graph, initial=graph.poses, params=replace(self.params, **changes) if changes else self.params,
                           initial_points=points)
         self._store.poses.view[:] = result.poses
+        self._whole.current = None  # a factor the last solve ended on is not of these poses
         self._unary = None
         if points is not None:
             self._landmarks.positions.view[:] = result.points
@@ -482,6 +483,7 @@ class IncrementalOptimizer:
         """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
         convention; zero for a held vertex). Cached until the next update that is not pure odometry;
         a pose added by odometry costs O(1) (:mod:`posegraph.incremental.covariance`)."""
+        self._whole.covariance_wanted = True  # from now on a solve ends on a factor at its final poses
         index = int(self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")[0])
         if self._landmarks.count:  # the held analysis is of poses only
             return self.joint_covariance([vertex_id])
@@ -492,6 +494,7 @@ class IncrementalOptimizer:
         (cached as :meth:`marginal_covariance`; with landmarks: :mod:`posegraph.analysis.covariance` on the whole graph)."""
         from posegraph.analysis.covariance import joint_covariance
 
+        self._whole.covariance_wanted = True
         index = self._store.indices_of(_ids(vertex_ids, "covariance"), "covariance")
         if not self._landmarks.count:
             return self._covariances.joint(index.tolist(), self._version)

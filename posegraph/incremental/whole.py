@@ -169,6 +169,8 @@ class WholeGraph:
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
+        self.covariance_wanted = False  # set by the optimiser once a covariance is asked
+        self.current: tuple[int, int] | None = None  # (factorisations, vertices) of a factor at the solve's end
         self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
         self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
 
@@ -177,6 +179,7 @@ class WholeGraph:
         self.hessian_at.n = self.gradient_at.n = 0
         self.left_out = np.zeros(0, dtype=np.int64)
         self.last.clear()
+        self.current = None
 
     def _ready(self, held: np.ndarray) -> bool:
         """Scatter positions for every edge; False when the analysis no longer covers the graph: the
@@ -310,6 +313,7 @@ class WholeGraph:
         start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
         evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
         self.last.clear()
+        self.current = None
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
@@ -325,6 +329,7 @@ class WholeGraph:
             decrement = -0.5 * float(g @ step)
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.last.keep(poses, evaluation, blocks)
+                self._end_factored(fresh, blocks, held, n)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
             if not fresh and not self._chord_pays():
                 fresh = True  # chord steps keep raising the cost here: refactorise at this point instead
@@ -351,6 +356,18 @@ class WholeGraph:
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
         return True, iteration, self._terms(objective, evaluation)
+
+    def _end_factored(self, fresh: bool, blocks, held: np.ndarray, n: int) -> None:
+        """Once covariances are asked (``covariance_wanted``) and without a loss, a solve ends holding a
+        factor of H at its final poses (refactorised there after a chord step), marked in ``current``:
+        the covariances after the update are then forward solves on it
+        (:mod:`posegraph.incremental.covariance`), and the factorisation they need is made here, where
+        the linearisation at those poses is at hand. With a loss, the solve's H carries IRLS weights
+        that the covariance convention leaves out."""
+        if not self.covariance_wanted or self.loss is not None:
+            return
+        if fresh or self._fresh(blocks, held, n) is not None:
+            self.current = (self.factorizations, n)
 
     def _chord_pays(self) -> bool:
         """Whether to try the chord step now (CHORD_ODDS, PROBE)."""
