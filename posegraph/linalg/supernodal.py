@@ -12,9 +12,12 @@ cvxopt hands out no accessor for the factor, so :class:`SupernodalPaths` reads C
 does): ``Perm``, ``super`` (first column of each supernode), ``pi``/``s`` (each supernode's row
 indices, its own columns first), ``px``/``x`` (its values, column-major ``rows × columns``). The read
 is trusted only when it describes this factor (``n``, supernodal LLᵀ, 64-bit indices, real double,
-consistent bounds); otherwise the caller falls back to the dense solve. The dense kernels are scipy's
-BLAS ``dtrsm`` on a supernode's diagonal block (a copy of that square) and numpy's product for the
-rows below (on the block in place).
+consistent bounds); otherwise the caller falls back to the dense solve. The dense kernels are those
+of the BLAS cvxopt's CHOLMOD itself calls (``dtrsm_``, ``dgemm_``, found through cvxopt's ``blas``
+module): single-threaded in the Linux wheel, and no import of scipy. scipy's ``dtrsm`` wrapper takes no
+leading dimension, so each diagonal block would be copied out of the supernode first, and its OpenBLAS
+runs threads of its own: the latest pose of a 20,000-pose graph took 3.7–10 ms with it against 1.6 ms
+here (measured side by side on this machine, under load).
 
 The arrays are views of CHOLMOD's memory: valid until the next numeric factorisation or the factor's
 release; :class:`posegraph.linalg.cholmod.SparseCholesky` drops its instance at each of them.
@@ -26,12 +29,28 @@ import ctypes
 
 import numpy as np
 
-__all__ = ["SupernodalPaths"]
+__all__ = ["SupernodalPaths", "fortran_blas"]
 
 _FLAGS = ("ordering", "is_ll", "is_super", "is_monotonic", "itype", "xtype", "dtype", "useGPU")
 """The ``int`` fields after the word-sized ones of ``cholmod_factor`` (CHOLMOD 3)."""
 
 _LONG, _REAL, _DOUBLE = 2, 1, 0  # CHOLMOD_LONG, CHOLMOD_REAL, CHOLMOD_DOUBLE
+
+_BLAS: list = []
+
+
+def fortran_blas():
+    """``(dtrsm_, dgemm_)`` of the BLAS cvxopt is linked to (ctypes functions, LP64 ints), or None."""
+    if not _BLAS:
+        try:
+            from cvxopt import blas
+
+            library = ctypes.CDLL(blas.__file__)  # dlsym searches its dependencies: cvxopt's OpenBLAS
+            _BLAS.append((library.dtrsm_, library.dgemm_))
+        except (ImportError, OSError, AttributeError):
+            _BLAS.append(None)
+    return _BLAS[0]
+
 
 def _struct(capsule, n: int) -> dict | None:
     """The fields of the numeric supernodal factor in cvxopt's ``capsule`` (addresses and sizes), or None."""
@@ -67,11 +86,9 @@ class SupernodalPaths:
     Build with :meth:`read`; ``n`` unknowns, ``perm`` ``(n,)`` (``A[perm][:, perm] = L Lᵀ``).
     """
 
-    def __init__(self, fields: dict):
-        from scipy.linalg.blas import dtrsm
-
+    def __init__(self, fields: dict, blas):
         n, count = int(fields["n"]), int(fields["nsuper"])
-        self.n, self.trsm = n, dtrsm
+        self.n, self.blas = n, blas
         self.perm = _array(fields["Perm"], n, ctypes.c_int64)
         self.super = _array(fields["super"], count + 1, ctypes.c_int64)
         self.pi = _array(fields["pi"], count + 1, ctypes.c_int64)
@@ -91,11 +108,11 @@ class SupernodalPaths:
     @classmethod
     def read(cls, capsule, n: int) -> SupernodalPaths | None:
         """The view of cvxopt's factor ``capsule`` of ``n`` unknowns, or None when it cannot be trusted
-        (another layout, not numeric supernodal LLᵀ, inconsistent bounds)."""
-        fields = _struct(capsule, n)
-        if fields is None:
+        (another layout, not numeric supernodal LLᵀ, inconsistent bounds, no BLAS found)."""
+        fields, blas = _struct(capsule, n), fortran_blas()
+        if fields is None or blas is None:
             return None
-        paths = cls(fields)
+        paths = cls(fields, blas)
         sizes_ok = paths.super[0] == 0 and paths.super[-1] == n and paths.pi[-1] == fields["ssize"]
         if not (sizes_ok and paths.px[-1] <= fields["xsize"] and np.all(np.diff(paths.super) > 0)):
             return None
@@ -136,11 +153,20 @@ class SupernodalPaths:
     def _eliminate(self, node: int, offset: int, width: int, y: np.ndarray, where: np.ndarray) -> None:
         """One supernode of the forward solve: ``y_k ← L_kk⁻¹ y_k``, then ``y_below −= L_below y_k``
         (``L_k`` column-major ``height × width`` at ``x + px[k]``, leading dimension ``height``)."""
-        height = int(self.pi[node + 1] - self.pi[node])
-        values = (ctypes.c_double * (height * width)).from_address(self.x_address + 8 * int(self.px[node]))
-        block = np.ctypeslib.as_array(values).reshape((height, width), order="F")  # a view: no copy
-        part = y[offset : offset + width]
-        part[:] = self.trsm(1.0, block[:width], part, lower=1)
-        if height > width:
+        trsm, gemm = self.blas
+        height, size, c = int(self.pi[node + 1] - self.pi[node]), y.shape[0], y.shape[1]
+        block = self.x_address + 8 * int(self.px[node])
+        target = y.ctypes.data + 8 * offset
+        byref, one, zero = ctypes.byref, ctypes.c_double(1.0), ctypes.c_double(0.0)
+        ints = [ctypes.c_int(v) for v in (width, c, height, size)]
+        trsm(b"L", b"L", b"N", b"N", byref(ints[0]), byref(ints[1]), byref(one), ctypes.c_void_p(block),
+             byref(ints[2]), ctypes.c_void_p(target), byref(ints[3]), 1, 1, 1, 1)
+        rest = height - width
+        if rest:
+            product = np.empty((rest, c), order="F")
+            m = ctypes.c_int(rest)
+            gemm(b"N", b"N", byref(m), byref(ints[1]), byref(ints[0]), byref(one), ctypes.c_void_p(block + 8 * width),
+                 byref(ints[2]), ctypes.c_void_p(target), byref(ints[3]), byref(zero), product.ctypes.data_as(ctypes.c_void_p),
+                 byref(m), 1, 1)
             below = self.s[self.pi[node] + width : self.pi[node + 1]]
-            y[where[below]] -= block[width:] @ part
+            y[where[below]] -= product
