@@ -447,15 +447,18 @@ class IncrementalOptimizer:
                 return "region", vertices.shape[0], iterations
             radius *= 2
 
-    def _refresh_terms(self, edges: np.ndarray) -> None:
-        """Per-edge cost terms of ``edges`` at the current estimate."""
+    def _refresh_terms(self, edges: np.ndarray, residuals: np.ndarray | None = None) -> None:
+        """Per-edge cost terms of ``edges`` at the current estimate (from their ``residuals`` ``(k, d)`` at
+        it when given, e.g. the batch solver's last evaluation)."""
         from posegraph.solve.residuals import edge_errors, squared_norms
 
         store = self._store
-        sub = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=store.edge_from.view[edges],
-                        edge_to=store.edge_to.view[edges], measurements=store.measurements.view[edges],
-                        information=store.information.view[edges], fixed=store.fixed.view, group=self.group)
-        s = squared_norms(edge_errors(store.poses.view, sub)[1], sub.information)
+        if residuals is None:
+            sub = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=store.edge_from.view[edges],
+                            edge_to=store.edge_to.view[edges], measurements=store.measurements.view[edges],
+                            information=store.information.view[edges], fixed=store.fixed.view, group=self.group)
+            residuals = edge_errors(store.poses.view, sub)[1]
+        s = squared_norms(residuals, store.information.view[edges])
         loss = self.params.loss
         self._terms.set(edges, s if loss is None else loss.rho(s))
 
@@ -474,7 +477,9 @@ class IncrementalOptimizer:
         if points is not None:
             self._landmarks.positions.view[:] = result.points
         self._version += 1  # the estimate changed: a covariance factorised before is stale
-        self._refresh_terms(np.arange(self._store.num_edges))
+        residuals = result.final_residuals
+        usable = residuals is not None and residuals.shape[0] == self._store.num_edges
+        self._refresh_terms(np.arange(self._store.num_edges), residuals if usable else None)
         return result
 
     # ------------------------------------------------------------------ covariances

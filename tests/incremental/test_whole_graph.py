@@ -182,6 +182,9 @@ def test_a_loop_closure_over_a_long_drifted_chain_goes_to_the_batch_solver():
     assert drifted.update().kind == "full"
     _, _, _, excess = cost_excess(drifted)
     assert excess <= 1e-6
+    from posegraph.solve.residuals import cost
+
+    assert drifted.cost() == pytest.approx(cost(drifted.graph()), rel=1e-12)  # terms from the batch's residuals
     calm, added = _drifted_chain_and_closure(SE2, 300, 1e-3, rng)
     assert calm.cost() < 1e-9 and 0 < added < DRASTIC_CHI2 * SE2.dim
     assert calm.update().kind == "whole"
