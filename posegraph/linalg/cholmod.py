@@ -326,37 +326,21 @@ class SparseCholesky:
         self._matrix = None
 
 
-_FACTOR_FIELDS = ("n", "minor", "Perm", "ColCount", "IPerm", "nzmax", "p", "i", "x", "z", "nz", "next", "prev",
-                  "nsuper", "ssize", "xsize", "maxcsize", "maxesize", "super", "pi", "px", "s")  # fmt: skip
-"""The word-sized fields at the head of CHOLMOD 3's ``cholmod_factor`` (``cholmod_core.h``), in order;
-two words of ``int`` flags follow (``ordering``, ``is_ll``; ``is_super``, ``is_monotonic``)."""
-
-
 def _supernodal_sizes(capsule, n: int) -> dict[str, int] | None:
     """The size fields of the analysed supernodal factor in cvxopt's capsule, or None.
 
-    cvxopt exposes no accessor for them, so the struct is read in place (ctypes, read only). The read
-    is trusted only if it describes this factor — ``n`` as analysed, the supernodal flag set, ``0 <
-    nsuper ≤ n`` and ``xsize ≥ n`` — so that another CHOLMOD's layout gives None, not a wrong size.
+    Read in place (:func:`posegraph.linalg.factor_struct.read_factor`); trusted only if it describes this
+    factor — ``n`` as analysed, the supernodal flag set, ``0 < nsuper ≤ n`` and ``xsize ≥ n`` — so that
+    another CHOLMOD's layout gives None, not a wrong size.
     """
-    import ctypes
+    from posegraph.linalg.factor_struct import read_factor
 
-    get_name = ctypes.pythonapi.PyCapsule_GetName
-    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
-    get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-    if ctypes.sizeof(ctypes.c_size_t) != 8 or type(capsule).__name__ != "PyCapsule":
+    fields = read_factor(capsule)
+    if fields is None or fields["n"] != n or fields["is_super"] != 1:
         return None
-    name = get_name(capsule)
-    if not name or not name.startswith(b"CHOLMOD FACTOR"):
+    if not 0 < fields["nsuper"] <= n or fields["xsize"] < n:
         return None
-    words = (ctypes.c_size_t * len(_FACTOR_FIELDS)).from_address(get_pointer(capsule, name))
-    sizes = dict(zip(_FACTOR_FIELDS, words))
-    flags = (ctypes.c_int * 4).from_address(ctypes.addressof(words) + ctypes.sizeof(words))
-    is_super = flags[2]
-    if sizes["n"] != n or is_super != 1 or not 0 < sizes["nsuper"] <= n or sizes["xsize"] < n:
-        return None
-    return {key: sizes[key] for key in ("nsuper", "ssize", "xsize", "maxcsize")}
+    return {key: fields[key] for key in ("nsuper", "ssize", "xsize", "maxcsize")}
 
 
 NESTED_DISSECTION_VERTICES = 10_000

@@ -8,10 +8,9 @@ cvxopt exposes only the dense ``solve`` (every supernode, forward and backward: 
 at 66,000 unknowns, against ~0.4 ms on the path here).
 
 cvxopt hands out no accessor for the factor, so :class:`SupernodalPaths` reads CHOLMOD 3's
-``cholmod_factor`` in place (ctypes, read only, as :func:`posegraph.linalg.cholmod._supernodal_sizes`
-does): ``Perm``, ``super`` (first column of each supernode), ``pi``/``s`` (each supernode's row
-indices, its own columns first), ``px``/``x`` (its values, column-major ``rows × columns``). The read
-is trusted only when it describes this factor (``n``, supernodal LLᵀ, 64-bit indices, real double,
+``cholmod_factor`` in place (:func:`posegraph.linalg.factor_struct.read_factor`): ``Perm``, ``super``
+(first column of each supernode), ``pi``/``s`` (each supernode's row indices, its own columns first),
+``px``/``x`` (its values, column-major ``rows × columns``). The read is trusted only when it describes this factor (``n``, supernodal LLᵀ, 64-bit indices, real double,
 consistent bounds); otherwise the caller falls back to the dense solve. The dense kernels are those
 of the BLAS cvxopt's CHOLMOD itself calls (``dtrsm_``, ``dgemm_``, found through cvxopt's ``blas``
 module): single-threaded in the Linux wheel, and no import of scipy. scipy's ``dtrsm`` wrapper takes no
@@ -29,10 +28,9 @@ import ctypes
 
 import numpy as np
 
-__all__ = ["SupernodalPaths", "fortran_blas"]
+from posegraph.linalg.factor_struct import read_factor
 
-_FLAGS = ("ordering", "is_ll", "is_super", "is_monotonic", "itype", "xtype", "dtype", "useGPU")
-"""The ``int`` fields after the word-sized ones of ``cholmod_factor`` (CHOLMOD 3)."""
+__all__ = ["SupernodalPaths", "fortran_blas"]
 
 _LONG, _REAL, _DOUBLE = 2, 1, 0  # CHOLMOD_LONG, CHOLMOD_REAL, CHOLMOD_DOUBLE
 
@@ -54,20 +52,9 @@ def fortran_blas():
 
 def _struct(capsule, n: int) -> dict | None:
     """The fields of the numeric supernodal factor in cvxopt's ``capsule`` (addresses and sizes), or None."""
-    from posegraph.linalg.cholmod import _FACTOR_FIELDS
-
-    get_name = ctypes.pythonapi.PyCapsule_GetName
-    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
-    get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-    if ctypes.sizeof(ctypes.c_size_t) != 8 or type(capsule).__name__ != "PyCapsule":
+    fields = read_factor(capsule)
+    if fields is None:
         return None
-    name = get_name(capsule)
-    if not name or not name.startswith(b"CHOLMOD FACTOR"):
-        return None
-    words = (ctypes.c_size_t * len(_FACTOR_FIELDS)).from_address(get_pointer(capsule, name))
-    fields = dict(zip(_FACTOR_FIELDS, words))
-    fields.update(zip(_FLAGS, (ctypes.c_int * len(_FLAGS)).from_address(ctypes.addressof(words) + ctypes.sizeof(words))))
     wanted = {"n": n, "is_ll": 1, "is_super": 1, "itype": _LONG, "xtype": _REAL, "dtype": _DOUBLE}
     if any(fields[key] != value for key, value in wanted.items()):
         return None
