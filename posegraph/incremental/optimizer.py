@@ -488,7 +488,7 @@ class IncrementalOptimizer:
         """``(d, d)`` marginal covariance of one pose at the current estimate (``analysis.covariance``'s
         convention; zero for a held vertex). Cached until the next update that is not pure odometry;
         a pose added by odometry costs O(1) (:mod:`posegraph.incremental.covariance`)."""
-        self._whole.covariance_wanted = True  # from now on a solve ends on a factor at its final poses
+        self._whole.covariance_wanted = True  # the next solve ends on a factor at its final poses
         index = int(self._store.indices_of(_ids([vertex_id], "covariance"), "covariance")[0])
         if self._landmarks.count:  # the held analysis is of poses only
             return self.joint_covariance([vertex_id])

@@ -169,7 +169,7 @@ class WholeGraph:
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
-        self.covariance_wanted = False  # set by the optimiser once a covariance is asked
+        self.covariance_wanted = False  # a covariance was asked since the last solve (set by the optimiser)
         self.current: tuple[int, int] | None = None  # (factorisations, vertices) of a factor at the solve's end
         self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
         self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
@@ -358,13 +358,14 @@ class WholeGraph:
         return True, iteration, self._terms(objective, evaluation)
 
     def _end_factored(self, fresh: bool, blocks, held: np.ndarray, n: int) -> None:
-        """Once covariances are asked (``covariance_wanted``) and without a loss, a solve ends holding a
-        factor of H at its final poses (refactorised there after a chord step), marked in ``current``:
-        the covariances after the update are then forward solves on it
-        (:mod:`posegraph.incremental.covariance`), and the factorisation they need is made here, where
-        the linearisation at those poses is at hand. With a loss, the solve's H carries IRLS weights
-        that the covariance convention leaves out."""
-        if not self.covariance_wanted or self.loss is not None:
+        """When a covariance was asked since the last solve (``covariance_wanted``: a front end asking
+        after every update) and without a loss, a solve ends holding a factor of H at its final poses
+        (refactorised there after a chord step), marked in ``current``: the covariances after the update
+        are then forward solves on it (:mod:`posegraph.incremental.covariance`), and the factorisation
+        they need is made here, where the linearisation at those poses is at hand. With a loss, the
+        solve's H carries IRLS weights that the covariance convention leaves out."""
+        wanted, self.covariance_wanted = self.covariance_wanted, False
+        if not wanted or self.loss is not None:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
             self.current = (self.factorizations, n)

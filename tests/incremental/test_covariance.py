@@ -73,6 +73,11 @@ def test_a_loop_closure_drops_the_cache_and_the_new_values_are_the_batch_ones(na
     _assert_batch(opt, [28, 3, 15], pair=(28, 3))
     _odometry(opt, rng, group, truth, 29)  # and odometry after it
     _assert_batch(opt, [29], pair=(29, 28))
+    opt.add_edges([6], [29], _noisy(rng, group, group.between(truth[6:7], truth[29:30])), _information(group, 1))
+    assert opt.update().kind != "exact" and opt._whole.current is not None  # asked after the last solve
+    opt.add_edges([9], [29], _noisy(rng, group, group.between(truth[9:10], truth[29:30])), _information(group, 1))
+    assert opt.update().kind != "exact" and opt._whole.current is None  # not asked since: no extra factorisation
+    _assert_batch(opt, [29])
 
 
 def test_a_batch_of_new_poses_forming_a_tree_in_one_update():
