@@ -112,10 +112,8 @@ class Covariances:
         and the parent's (the child at either end)."""
         store, group = self.store, self.store.group
         edges = np.array([self.parent[c][1] for c in children], dtype=np.int64)
-        i, j = store.edge_from.view[edges], store.edge_to.view[edges]
-        poses = store.poses.view
-        relative = group.between(poses[i], poses[j])
-        residual = group.edge_log(group.between(store.measurements.view[edges], relative))
+        j = store.edge_to.view[edges]
+        relative, residual = store.edge_errors(edges)
         b, adjoint = residual_jacobian_factors(group, residual, relative)
         a_i = -b @ adjoint
         at_j = (j == np.array(children))[:, None, None]

@@ -453,14 +453,11 @@ class IncrementalOptimizer:
     def _refresh_terms(self, edges: np.ndarray, residuals: np.ndarray | None = None) -> None:
         """Per-edge cost terms of ``edges`` at the current estimate (from their ``residuals`` ``(k, d)`` at
         it when given, e.g. the batch solver's last evaluation)."""
-        from posegraph.solve.residuals import edge_errors, squared_norms
+        from posegraph.solve.residuals import squared_norms
 
         store = self._store
         if residuals is None:
-            sub = PoseGraph(ids=store.ids.view, poses=store.poses.view, edge_from=store.edge_from.view[edges],
-                            edge_to=store.edge_to.view[edges], measurements=store.measurements.view[edges],
-                            information=store.information.view[edges], fixed=store.fixed.view, group=self.group)
-            residuals = edge_errors(store.poses.view, sub)[1]
+            residuals = store.edge_errors(edges)[1]
         s = squared_norms(residuals, store.information.view[edges])
         loss = self.params.loss
         self._terms.set(edges, s if loss is None else loss.rho(s))

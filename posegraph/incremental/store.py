@@ -208,6 +208,17 @@ class GraphStore:
             raise GraphError("edges to remove: a key is given twice")
         return found
 
+    def edge_errors(self, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(relative (k, n, n), residuals (k, d))`` of the edges at positions ``edges`` ``(k,)`` at the
+        current poses (:func:`posegraph.solve.residuals.edge_errors` on views of the store)."""
+        from posegraph.model.graph import PoseGraph
+        from posegraph.solve.residuals import edge_errors
+
+        sub = PoseGraph(ids=self.ids.view, poses=self.poses.view, edge_from=self.edge_from.view[edges],
+                        edge_to=self.edge_to.view[edges], measurements=self.measurements.view[edges],
+                        information=self.information.view[edges], fixed=self.fixed.view, group=self.group)
+        return edge_errors(self.poses.view, sub)
+
     def remove_edges(self, positions: np.ndarray) -> None:
         """Drop the edges at ``positions``; the adjacency lists are rebuilt."""
         keep = np.ones(self.edge_from.n, dtype=bool)
