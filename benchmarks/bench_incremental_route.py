@@ -53,6 +53,16 @@ def _route(n: int, loops: bool):
     return graph, data.ground_truth
 
 
+def _closed(graph, truth):
+    """``graph`` with the long loop closure added: first pose to last, its true relative pose, the first
+    edge's information."""
+    n = graph.num_vertices
+    z = graph.group.between(truth[:1], truth[-1:])
+    return replace(graph, edge_from=np.r_[graph.edge_from, 0], edge_to=np.r_[graph.edge_to, n - 1],
+                   measurements=np.concatenate([graph.measurements, z]),
+                   information=np.concatenate([graph.information, graph.information[:1]]))
+
+
 def _peak() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
@@ -70,12 +80,9 @@ def route(n: int) -> dict:
     s = result.seconds
     replay_peak = _peak()  # before the batch solves below raise the process's high-water mark
     deciles = [float(1e3 * part.mean()) for part in np.array_split(s, 10)]
-    z = graph.group.between(truth[:1], truth[-1:])
-    info = graph.information[:1]
     start = opt.graph()
-    closed = replace(start, edge_from=np.r_[start.edge_from, 0], edge_to=np.r_[start.edge_to, n - 1],
-                     measurements=np.concatenate([start.measurements, z]),
-                     information=np.concatenate([start.information, info]), fixed=opt.held())
+    closed = replace(_closed(start, truth), fixed=opt.held())
+    z, info = closed.measurements[-1:], closed.information[-1:]
     _LAST_ORDERS.clear()  # each solve below orders its graph itself (none reuses another's order)
     began = time.perf_counter()  # one batch solve before the update, one after: neither tool always goes first
     batch = optimize(closed, initial=start.poses)
@@ -102,22 +109,14 @@ def _warm_up() -> None:
     loaded before any of them is timed."""
     from posegraph.solve import optimize
 
-    graph, truth = _route(300, loops=False)
-    z = graph.group.between(truth[:1], truth[-1:])
-    closed = replace(graph, edge_from=np.r_[graph.edge_from, 0], edge_to=np.r_[graph.edge_to, 299],
-                     measurements=np.concatenate([graph.measurements, z]),
-                     information=np.concatenate([graph.information, graph.information[:1]]))
+    closed = _closed(*_route(300, loops=False))
     optimize(closed, initial=closed.poses)
 
 
 def batch_memory(n: int) -> dict:
     from posegraph.solve import optimize
 
-    graph, truth = _route(n, loops=False)
-    z = graph.group.between(truth[:1], truth[-1:])
-    closed = replace(graph, edge_from=np.r_[graph.edge_from, 0], edge_to=np.r_[graph.edge_to, n - 1],
-                     measurements=np.concatenate([graph.measurements, z]),
-                     information=np.concatenate([graph.information, graph.information[:1]]))
+    closed = _closed(*_route(n, loops=False))
     began = time.perf_counter()
     result = optimize(closed, initial=closed.poses)
     return {"poses": n, "batch_s": time.perf_counter() - began, "batch_cost": float(result.final_cost), "peak_rss_mib": _peak()}
