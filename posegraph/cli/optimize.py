@@ -16,6 +16,9 @@ from posegraph.cli.robust import (
     check_robust_options, final_landmark_weights, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
     robust_summary, run_gnc, warn_about_known_inliers,
 )
+from posegraph.cli.rerun_output import (
+    check_rerun_options, open_recording, optimize_recorder, record_optimize_result, rerun_options, with_recorder,
+)
 from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params, stop_reason
 
 NAME = "optimize"
@@ -56,6 +59,7 @@ def add_arguments(p) -> None:
                         "zero and the others are relative to them; a landmark graph's file also holds 'landmark_ids' (L,) "
                         "and 'landmark_covariances' (L, s, s) of the points (world frame); written with OUT, or neither")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+    rerun_options(p)
 
 
 def file_options(p) -> None:
@@ -78,10 +82,15 @@ def file_options(p) -> None:
 
 
 def run(args) -> int:
+    _check_outputs(args)
+    with open_recording(args, "posegraph optimize") as recording:
+        return _run(args, recording)
+
+
+def _run(args, recording) -> int:
     from posegraph.cli.startup import import_solver_modules
 
     status = Status(args.quiet)
-    _check_outputs(args)
     import_solver_modules()  # first: it sets one BLAS thread before numpy loads
     from posegraph.analysis.report import chi2_summary
     from posegraph.solve import optimize
@@ -92,10 +101,12 @@ def run(args) -> int:
 
         sync_problem(held)
     params = solver_params(args, callback=None if args.quiet else iteration_printer(status, args.max_iterations))
+    recorder = optimize_recorder(recording, held, start)
+    params = with_recorder(params, recorder)
     robust = None
     with Timer() as t_opt:
         if args.robust == "gnc":
-            robust = run_gnc(held, start, solver_params(args), args, status)
+            robust = run_gnc(held, start, with_recorder(solver_params(args), recorder), args, status)
             result = robust.result
         else:
             result = optimize(held, initial=start, params=params)
@@ -121,8 +132,10 @@ def run(args) -> int:
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
+    record_optimize_result(recorder, held, result, weights=weights, covariances=covariances, chi2=chi2, robust=robust,
+                           title=f"posegraph optimize {os.path.basename(display_name(args.input))}")
     _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known,
-                   prior_weights, certified, landmark_weights)
+                   prior_weights, certified, landmark_weights, recording)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2, certified)
         robust_summary(graph, weights, args, prior_weights, landmark_weights)
@@ -143,6 +156,7 @@ def display_name_out(path: str) -> str:
 def _check_outputs(args) -> None:
     """Every output writable, none the input (unless ``--force``), no two the same; before any work."""
     check_robust_options(args)
+    check_rerun_options(args)
     if args.certify:
         from posegraph.cli.certified import check_certify_options
 
@@ -156,7 +170,7 @@ def _check_outputs(args) -> None:
         check_output(args.covariances, inputs=[args.input], what="covariances")
     if args.output == STDIO and args.report == STDIO:
         raise UsageError("the result and the report cannot both go to standard output (-)")
-    check_distinct([p for p in (args.output, args.report, args.plot, args.covariances) if p and p != STDIO])
+    check_distinct([p for p in (args.output, args.report, args.plot, args.covariances, args.rerun) if p and p != STDIO])
 
 
 def _start(args, status: Status):
@@ -224,7 +238,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 def _write_outputs(
     args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
-    prior_weights=None, certified=None, landmark_weights=None,
+    prior_weights=None, certified=None, landmark_weights=None, recording=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -265,6 +279,8 @@ def _write_outputs(
                              landmark_covariances=covariances["landmarks"])
                 else:
                     np.savez(f, ids=graph.ids, covariances=covariances)
+        if recording is not None:
+            recording.stage_into(outputs)
         outputs.commit()
     for text in printed:
         sys.stdout.write(text)

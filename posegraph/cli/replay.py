@@ -8,6 +8,7 @@ from posegraph.cli.common import (
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, UsageError, check_distinct, check_figure, check_output,
     display_name, fmt_cost, positive_int, print_all, read_graph, repair_option, stage_or_print,
 )
+from posegraph.cli.rerun_output import check_rerun_options, open_recording, replay_recorder, rerun_options
 
 NAME = "replay"
 HELP = "replay a g2o file pose by pose through the incremental optimiser"
@@ -48,6 +49,7 @@ def add_arguments(p) -> None:
     p.add_argument("--robust-scale", type=float, default=None, metavar="C", help="the loss's scale")
     repair_option(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
+    rerun_options(p)
 
 
 def _check(args) -> None:
@@ -61,7 +63,8 @@ def _check(args) -> None:
         check_figure(args.plot, inputs=[args.input])
     if args.output == STDIO and args.report == STDIO:
         raise UsageError("the result and the report cannot both go to standard output (-)")
-    check_distinct([p for p in (args.output, args.report, args.plot) if p and p != STDIO])
+    check_rerun_options(args)
+    check_distinct([p for p in (args.output, args.report, args.plot, args.rerun) if p and p != STDIO])
 
 
 def _optimizer(args, graph):
@@ -91,18 +94,24 @@ def _progress(status: Status, total: int):
 
 
 def run(args) -> int:
+    _check(args)
+    with open_recording(args, "posegraph replay") as recording:
+        return _run(args, recording)
+
+
+def _run(args, recording) -> int:
     from posegraph.cli.startup import import_solver_modules
 
     status = Status(args.quiet)
-    _check(args)
     import_solver_modules()
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
     opt, params = _optimizer(args, graph)
+    recorder = replay_recorder(recording, graph, args.batch_size)
     with Timer() as t:
         result = replay(graph, args.batch_size, optimizer=opt, check_every=args.check_every,
-                        progress=None if args.quiet else _progress(status, graph.num_vertices))
+                        progress=_chain(None if args.quiet else _progress(status, graph.num_vertices), recorder))
     stats = time_statistics(result.seconds)
     with Timer() as t_batch:
         poses, ours, best, excess = result.checks[-1] if result.checks else cost_excess(opt)
@@ -114,7 +123,9 @@ def run(args) -> int:
               file=sys.stdout if args.output != STDIO else sys.stderr)
         print(f"final cost {fmt_cost(ours)}, batch solve {fmt_cost(best)}: excess {excess:.3g} relative",
               file=sys.stdout if args.output != STDIO else sys.stderr)
-    _write(args, status, graph, opt, params, result, stats, (ours, best, excess), seconds)
+    if recorder is not None:
+        recorder.finish(result, (ours, best, excess), stats, title=f"posegraph replay {display_name(args.input)}")
+    _write(args, status, graph, opt, params, result, stats, (ours, best, excess), seconds, recording)
     drawn = _draw(args, status, result) if args.plot else True
     return EXIT_OK if excess <= 1e-6 and drawn else EXIT_NOT_CONVERGED
 
@@ -128,7 +139,15 @@ def _final_result(opt, ours: float):
                           method="incremental")
 
 
-def _write(args, status, graph, opt, params, result, stats, costs, seconds) -> None:
+def _chain(*hooks):
+    """One progress hook calling each of ``hooks`` that is not None (None if none is)."""
+    hooks = [h for h in hooks if h is not None]
+    if len(hooks) < 2:
+        return hooks[0] if hooks else None
+    return lambda result, number: [hook(result, number) for hook in hooks] and None
+
+
+def _write(args, status, graph, opt, params, result, stats, costs, seconds, recording=None) -> None:
     """``-o`` and ``--report``, staged and renamed into place together (as optimize does)."""
     from posegraph.io.atomic import StagedOutputs, json_text
     from posegraph.io.g2o import format_g2o, write_g2o
@@ -148,6 +167,8 @@ def _write(args, status, graph, opt, params, result, stats, costs, seconds) -> N
         if args.report:
             report = _report(args, graph, opt, params, result, stats, costs, seconds, final, file_cost)
             stage_or_print(outputs, args.report, json_text(report), printed)
+        if recording is not None:
+            recording.stage_into(outputs)
         outputs.commit()
     print_all(printed)
 

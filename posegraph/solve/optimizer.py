@@ -531,6 +531,8 @@ def _termination(run: _Run, outcome: _Outcome, record: IterationRecord) -> str |
     be small too. At a full step with gain ≈ 1 (every standard file) the two agree.
     """
     stop = outcome.stop
+    if run.params.estimate_callback is not None:
+        run.params.estimate_callback(record, run.poses, run.points)
     if run.params.callback is not None:
         try:
             if run.params.callback(record) is True:

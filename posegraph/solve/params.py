@@ -175,6 +175,13 @@ class SolverParams:
     """Called with each :class:`~posegraph.solve.result.IterationRecord` as it is made (e.g. to print
     progress). Returning ``True`` (or raising ``StopIteration``) stops the solver with reason ``"callback"``."""
 
+    estimate_callback: Optional[Callable[..., None]] = None
+    """Called after each iteration, before :attr:`callback`, with ``(record, poses, points)``: its
+    :class:`~posegraph.solve.result.IterationRecord`, the ``(n, k, k)`` poses and the ``(L, s)`` landmark
+    positions (None without landmarks) the iteration ends at — the solver's own arrays, never changed in
+    place afterwards (a later iteration makes new ones), to be read, not written (e.g. to record the
+    estimate's path: :mod:`posegraph.analysis.rerun_log`). Its return value is ignored."""
+
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
             raise ValueError(f"method must be one of {_METHODS}, got {self.method!r}")
@@ -206,3 +213,5 @@ class SolverParams:
             raise ValueError("loss must have methods rho(s) and weight(s), or be None")
         if self.callback is not None and not callable(self.callback):
             raise ValueError("callback must be callable or None")
+        if self.estimate_callback is not None and not callable(self.estimate_callback):
+            raise ValueError("estimate_callback must be callable or None")
