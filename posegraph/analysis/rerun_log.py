@@ -242,11 +242,11 @@ def _log_covariances(rec, poses, covariances) -> None:
     chosen = scene.selected_poses(len(poses), COVARIANCE_MAX_POSES)
     if poses.shape[-1] == 3:
         outlines = scene.ellipse_outlines(poses[chosen], np.asarray(covariances)[chosen])
-        rec.log("world/covariance", rr.LineStrips3D(outlines, colors=scene.OUTLIER_COLOUR, radii=THIN), static=True)
+        rec.log("world/covariance", rr.LineStrips3D(outlines, colors=scene.COVARIANCE_COLOUR, radii=THIN), static=True)
         return
     centres, half_sizes, quaternions = scene.covariance_ellipsoids(poses[chosen], np.asarray(covariances)[chosen])
     rec.log("world/covariance", rr.Ellipsoids3D(centers=centres, half_sizes=half_sizes, quaternions=quaternions,
-                                                colors=scene.OUTLIER_COLOUR, fill_mode="MajorWireframe"), static=True)
+                                                colors=scene.COVARIANCE_COLOUR, fill_mode="MajorWireframe"), static=True)
 
 
 def _log_history(rec, history) -> None:
@@ -274,7 +274,7 @@ def _summary_markdown(graph, result, weights: np.ndarray, chi2: dict, title: str
     if graph.landmarks is not None:
         rows.insert(1, ("landmarks", str(graph.landmarks.count)))
     table = "\n".join(f"| {name} | {value} |" for name, value in rows)
-    return f"# {title or 'posegraph optimize'}\n\n| | |\n|---|---|\n{table}\n"
+    return f"### {title or 'posegraph optimize'}\n\n| | |\n|---|---|\n{table}\n"
 
 
 def optimize_blueprint(graph, poses=None):
@@ -286,7 +286,7 @@ def optimize_blueprint(graph, poses=None):
                               eye_controls=top_view(graph.poses if poses is None else poses))
     side = rrb.Vertical(rrb.TimeSeriesView(origin="metrics/cost", name="cost"),
                         rrb.TextDocumentView(origin="summary", name="summary"), row_shares=[1, 1])
-    return rrb.Blueprint(rrb.Horizontal(world, side, column_shares=[3, 1]), rrb.TimePanel(timeline=ITERATION),
+    return rrb.Blueprint(rrb.Horizontal(world, side, column_shares=[3, 1]), rrb.TimePanel(timeline=ITERATION, state="collapsed", play_state="following"),
                          collapse_panels=True)
 
 

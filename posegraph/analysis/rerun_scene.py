@@ -13,7 +13,7 @@ import numpy as np
 __all__ = [
     "positions", "headings", "edge_segments", "weight_colours", "chi2_colours", "covariance_ellipsoids",
     "ellipse_outlines", "selected_poses", "FrameBudget", "OUTLIER_WEIGHT", "INLIER_COLOUR", "OUTLIER_COLOUR",
-    "INITIAL_COLOUR", "ODOMETRY_COLOUR", "NEW_CLOSURE_COLOUR", "BYTES_PER_POINT",
+    "INITIAL_COLOUR", "ODOMETRY_COLOUR", "NEW_CLOSURE_COLOUR", "COVARIANCE_COLOUR", "BYTES_PER_POINT",
 ]
 
 OUTLIER_WEIGHT = 0.5
@@ -28,6 +28,8 @@ OUTLIER_COLOUR = (213, 94, 0, 255)
 """An edge of weight below :data:`OUTLIER_WEIGHT`: vermilion (Okabe–Ito)."""
 NEW_CLOSURE_COLOUR = (230, 159, 0, 255)
 """A loop closure just added by a replay update: orange (Okabe–Ito)."""
+COVARIANCE_COLOUR = (204, 121, 167, 255)
+"""Uncertainty ellipsoids and ellipses: reddish purple (Okabe–Ito)."""
 BYTES_PER_POINT = 12
 """A 3D point in a recording: three float32."""
 

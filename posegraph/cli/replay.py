@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from posegraph.cli.common import (
@@ -124,7 +125,7 @@ def _run(args, recording) -> int:
         print(f"final cost {fmt_cost(ours)}, batch solve {fmt_cost(best)}: excess {excess:.3g} relative",
               file=sys.stdout if args.output != STDIO else sys.stderr)
     if recorder is not None:
-        recorder.finish(result, (ours, best, excess), stats, title=f"posegraph replay {display_name(args.input)}")
+        recorder.finish(result, (ours, best, excess), stats, title=f"posegraph replay {os.path.basename(display_name(args.input))}")
     _write(args, status, graph, opt, params, result, stats, (ours, best, excess), seconds, recording)
     drawn = _draw(args, status, result) if args.plot else True
     return EXIT_OK if excess <= 1e-6 and drawn else EXIT_NOT_CONVERGED

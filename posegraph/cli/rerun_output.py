@@ -151,10 +151,9 @@ def replay_recorder(recording, graph, batch_size: int):
     """The :class:`~posegraph.incremental.rerun_replay.ReplayRecorder` of a ``replay`` run (None without a recording)."""
     if recording is None:
         return None
-    from posegraph.analysis.rerun_log import log_graph, require_rerun
+    from posegraph.analysis.rerun_log import require_rerun
     from posegraph.incremental.rerun_replay import ReplayRecorder
 
     rec = recording.stream
     rec.log("world", require_rerun().ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    log_graph(rec, graph)
     return ReplayRecorder(rec, graph, batch_size)

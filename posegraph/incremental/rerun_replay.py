@@ -156,7 +156,7 @@ def _summary(recorder: ReplayRecorder, result, costs: tuple, stats: dict, title:
         ("updates logged", f"{int(recorder.frames.sum())} of {len(recorder.frames)}"),
     ]
     table = "\n".join(f"| {name} | {value} |" for name, value in rows)
-    return f"# {title or 'posegraph replay'}\n\n| | |\n|---|---|\n{table}\n"
+    return f"### {title or 'posegraph replay'}\n\n| | |\n|---|---|\n{table}\n"
 
 
 def replay_blueprint(poses=None):
@@ -168,5 +168,5 @@ def replay_blueprint(poses=None):
     side = rrb.Vertical(rrb.TimeSeriesView(origin="metrics/update_ms", name="update time (ms)"),
                         rrb.TimeSeriesView(origin="metrics/cost_excess", name="cost excess (relative)"),
                         rrb.TextDocumentView(origin="summary", name="summary"))
-    return rrb.Blueprint(rrb.Horizontal(world, side, column_shares=[3, 1]), rrb.TimePanel(timeline=POSE),
+    return rrb.Blueprint(rrb.Horizontal(world, side, column_shares=[3, 1]), rrb.TimePanel(timeline=POSE, state="collapsed", play_state="following"),
                          collapse_panels=True)
