@@ -39,7 +39,7 @@ HEADINGS_MAX_POSES = 5000
 """Heading arrows are drawn for graphs of at most this many poses."""
 COVARIANCE_MAX_POSES = 200
 """At most this many covariance ellipsoids or ellipses, at poses spread evenly along the vertex order."""
-THIN, THICK = -1.0, -3.0
+THIN, THICK = -1.0, -2.0
 """Line radii in UI points (Rerun reads a negative radius as UI points, not metres)."""
 
 

@@ -24,8 +24,9 @@ ODOMETRY_COLOUR = (0, 114, 178, 255)
 """An odometry edge of weight 1: blue (Okabe–Ito)."""
 INLIER_COLOUR = (0, 158, 115, 255)
 """A loop closure of weight 1: green (Okabe–Ito); weights below 1 fade it towards grey."""
-OUTLIER_COLOUR = (213, 94, 0, 255)
-"""An edge of weight below :data:`OUTLIER_WEIGHT`: vermilion (Okabe–Ito)."""
+OUTLIER_COLOUR = (213, 94, 0, 170)
+"""An edge of weight below :data:`OUTLIER_WEIGHT`: vermilion (Okabe–Ito), a little transparent (outliers
+cross the map)."""
 NEW_CLOSURE_COLOUR = (230, 159, 0, 255)
 """A loop closure just added by a replay update: orange (Okabe–Ito)."""
 COVARIANCE_COLOUR = (204, 121, 167, 255)

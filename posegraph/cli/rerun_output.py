@@ -55,6 +55,9 @@ class Recording:
     viewer. :meth:`stage_into` hands the finished file to the command's outputs."""
 
     def __init__(self, args, application: str) -> None:
+        from posegraph.cli.startup import single_threaded_blas
+
+        single_threaded_blas()  # before numpy loads, with Rerun, as the command's own imports would have it
         from posegraph.analysis.rerun_log import require_rerun
         from posegraph.io.atomic import StagedOutputs
 
