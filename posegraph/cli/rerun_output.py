@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 
-from posegraph.cli.common import UsageError, check_output
+from posegraph.cli.common import UsageError, check_output, warn
 
 DEFAULT_VIEWER = "rerun+http://127.0.0.1:9876/proxy"
 """Where a Rerun viewer listens by default (``rerun`` started on its own, or ``--rerun-spawn``)."""
@@ -40,6 +40,23 @@ def check_rerun_options(args) -> None:
     if importlib.util.find_spec("rerun") is None:
         raise UsageError("--rerun, --rerun-spawn and --rerun-connect need the rerun-sdk package: "
                          "pip install 'posegraph[rerun]'")
+    if args.rerun_connect:
+        check_viewer(viewer_url(args.rerun_connect))
+
+
+def check_viewer(url: str, seconds: float = 3.0) -> None:
+    """A usage error unless something listens at ``url``'s host and port (a TCP connection), so that a
+    wrong address fails before the run rather than after it."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    try:
+        port = parts.port or (443 if parts.scheme.endswith("https") else 80)
+        with socket.create_connection((parts.hostname or "127.0.0.1", port), timeout=seconds):
+            pass
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--rerun-connect: no Rerun viewer at {url} ({getattr(exc, 'strerror', None) or exc})") from None
 
 
 def viewer_url(address: str) -> str:
@@ -58,6 +75,7 @@ class Recording:
         from posegraph.cli.startup import single_threaded_blas
 
         single_threaded_blas()  # before numpy loads, with Rerun, as the command's own imports would have it
+        os.environ.setdefault("RUST_LOG", "off")  # the SDK's own log lines: posegraph warns in one line itself
         from posegraph.analysis.rerun_log import require_rerun
         from posegraph.io.atomic import StagedOutputs
 
@@ -65,19 +83,25 @@ class Recording:
         self.path = args.rerun
         self.stream = rr.RecordingStream(application, recording_id=os.urandom(8).hex())
         self._staged = StagedOutputs()
+        self.viewer = viewer_url(args.rerun_connect) if args.rerun_connect else DEFAULT_VIEWER
         sinks = []
         if self.path:
             self._tmp = self._staged.stage(self.path)
             sinks.append(rr.FileSink(self._tmp))
+        self.live = bool(args.rerun_spawn or args.rerun_connect)
         if args.rerun_spawn:
-            rr.spawn(connect=False)
-        if args.rerun_spawn or args.rerun_connect:
-            sinks.append(rr.GrpcSink(viewer_url(args.rerun_connect) if args.rerun_connect else DEFAULT_VIEWER))
+            self.stream.spawn(connect=False)
+        if self.live:
+            sinks.append(rr.GrpcSink(self.viewer))
         self.stream.set_sinks(*sinks)
 
     def stage_into(self, outputs) -> None:
-        """Flush the recording and stage its file among ``outputs`` (renamed with them on their commit)."""
-        self.stream.flush()
+        """Flush the recording and stage its file among ``outputs`` (renamed with them on their commit).
+        A viewer that cannot be reached is a warning: the run's outputs and the file are still written."""
+        try:
+            self.stream.flush()
+        except RuntimeError as exc:  # the gRPC sink: the viewer went away, or never came (--rerun-spawn)
+            warn(f"the recording did not reach the Rerun viewer at {self.viewer} ({' '.join(str(exc).split())})")
         self.stream.disconnect()
         if not self.path:
             return

@@ -196,3 +196,14 @@ def test_a_failed_run_leaves_no_partial_recording(tmp_path):
     run = run_cli("optimize", EXAMPLE, "-o", tmp_path / "out.g2o", "--rerun", tmp_path / "run.rrd", "--fix", "999999", "-q")
     assert_one_error_line(run, "999999")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_no_viewer_at_the_connect_address_is_one_line_before_any_solving(tmp_path):
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on once closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    run = run_cli("optimize", EXAMPLE, "-o", tmp_path / "out.g2o", "--rerun-connect", f"127.0.0.1:{port}")
+    assert_one_error_line(run, "--rerun-connect", f"127.0.0.1:{port}")
+    assert list(tmp_path.iterdir()) == []
