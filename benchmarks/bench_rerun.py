@@ -5,9 +5,10 @@ alternating without and with the recording, medians of ``R`` rounds:
 
 * ``process``: the whole command (``python cli.py …``) without and with ``--rerun OUT.rrd``, and the
   ``.rrd``'s size;
-* ``in process``: the run's work (``posegraph.solve.optimize`` and ``analysis.rerun_log.log_result``;
-  ``incremental.replay`` with its ``ReplayRecorder``) with Rerun already imported, without and with the
-  logging and the final flush: what logging adds beyond the fixed cost of importing Rerun;
+* ``in process``: the run (``posegraph.solve.optimize``; ``incremental.replay``) without logging, and the
+  seconds spent in the logging calls of a run with it (``IterationRecorder``, ``log_result``, the
+  blueprint; ``ReplayRecorder`` and its ``finish``) and the final flush, Rerun already imported: what
+  logging adds beyond the fixed cost of importing Rerun;
 * ``import``: ``import rerun`` and its first conversion (which imports pandas where it is installed)
   in a fresh process.
 """
@@ -54,50 +55,72 @@ def import_seconds(rounds: int) -> float:
                                                   text=True).stdout) for _ in range(rounds))
 
 
-def _optimize_once(graph, record: bool, folder: str) -> float:
+class _Timed:
+    """A hook that sums the seconds spent in ``hook``."""
+
+    def __init__(self, hook) -> None:
+        self.hook, self.seconds = hook, 0.0
+
+    def __call__(self, *args) -> None:
+        start = time.perf_counter()
+        self.hook(*args)
+        self.seconds += time.perf_counter() - start
+
+
+def _stream(folder: str):
     import rerun as rr
 
-    from posegraph.analysis.rerun_log import IterationRecorder, log_result
-    from posegraph.solve import SolverParams, optimize
-
-    start = time.perf_counter()
-    if not record:
-        optimize(graph)
-        return time.perf_counter() - start
     rec = rr.RecordingStream("bench", recording_id=os.urandom(8).hex())
     rec.set_sinks(rr.FileSink(os.path.join(folder, "in-process.rrd")))
-    recorder = IterationRecorder(rec, graph)
+    return rec
+
+
+def _optimize_once(graph, record: bool, folder: str) -> tuple[float, float]:
+    """``(seconds of the solve, seconds of the logging calls and the final flush)``."""
+    from posegraph.analysis.rerun_log import IterationRecorder, log_result, optimize_blueprint
+    from posegraph.solve import SolverParams, optimize
+
+    if not record:
+        start = time.perf_counter()
+        optimize(graph)
+        return time.perf_counter() - start, 0.0
+    rec = _stream(folder)
+    recorder = _Timed(IterationRecorder(rec, graph))
+    start = time.perf_counter()
     result = optimize(graph, params=SolverParams(estimate_callback=recorder))
-    recorder.finish(result.poses, result.points)
+    solved = time.perf_counter()
+    recorder.hook.finish(result.poses, result.points)
     log_result(rec, graph, result)
+    rec.send_blueprint(optimize_blueprint(graph, result.poses))
     rec.flush()
     rec.disconnect()
-    return time.perf_counter() - start
+    return solved - start - recorder.seconds, recorder.seconds + time.perf_counter() - solved
 
 
-def _replay_once(graph, record: bool, folder: str) -> float:
-    import rerun as rr
-
+def _replay_once(graph, record: bool, folder: str) -> tuple[float, float]:
+    """``(seconds of the replay, seconds of the logging calls and the final flush)``."""
     from posegraph.incremental.replay import replay, time_statistics
     from posegraph.incremental.rerun_replay import ReplayRecorder
 
-    start = time.perf_counter()
     if not record:
+        start = time.perf_counter()
         replay(graph)
-        return time.perf_counter() - start
-    rec = rr.RecordingStream("bench", recording_id=os.urandom(8).hex())
-    rec.set_sinks(rr.FileSink(os.path.join(folder, "in-process.rrd")))
-    recorder = ReplayRecorder(rec, graph)
+        return time.perf_counter() - start, 0.0
+    rec = _stream(folder)
+    recorder = _Timed(ReplayRecorder(rec, graph))
+    start = time.perf_counter()
     result = replay(graph, progress=recorder)
+    replayed = time.perf_counter()
     cost = result.optimizer.cost()
-    recorder.finish(result, (cost, cost, 0.0), time_statistics(result.seconds))
+    recorder.hook.finish(result, (cost, cost, 0.0), time_statistics(result.seconds))
     rec.flush()
     rec.disconnect()
-    return time.perf_counter() - start
+    return replayed - start - recorder.seconds, recorder.seconds + time.perf_counter() - replayed
 
 
 def in_process_case(command: str, rounds: int, folder: str) -> dict:
-    """The run's seconds without and with logging (Rerun imported and warmed up first), alternating."""
+    """The run's seconds without logging, and the seconds of the logging calls of a run with it
+    (Rerun imported and warmed up first), runs alternating."""
     import numpy as np
     import rerun as rr
 
@@ -107,11 +130,11 @@ def in_process_case(command: str, rounds: int, folder: str) -> dict:
     graph = read_g2o(DATASETS / CASES[command][0])
     once = _optimize_once if command == "optimize" else _replay_once
     once(graph, True, folder)  # warm-up
-    plain, recorded = [], []
+    plain, logging = [], []
     for _ in range(rounds):
-        plain.append(once(graph, False, folder))
-        recorded.append(once(graph, True, folder))
-    return {"without": statistics.median(plain), "with": statistics.median(recorded)}
+        plain.append(once(graph, False, folder)[0])
+        logging.append(once(graph, True, folder)[1])
+    return {"run": statistics.median(plain), "logging": statistics.median(logging)}
 
 
 def main(argv=None) -> None:
@@ -125,8 +148,8 @@ def main(argv=None) -> None:
             print(f"{command} {CASES[command][0]} process: {p['without']:.3f} s -> {p['with']:.3f} s "
                   f"({p['with'] / p['without']:.2f}x), recording {p['bytes'] / 1e6:.2f} MB")
             q = in_process_case(command, args.rounds, folder)
-            print(f"{command} {CASES[command][0]} in process: {q['without']:.3f} s -> {q['with']:.3f} s "
-                  f"(+{100 * (q['with'] / q['without'] - 1):.1f} %)")
+            print(f"{command} {CASES[command][0]} in process: run {q['run']:.3f} s, logging {q['logging']:.3f} s "
+                  f"(+{100 * q['logging'] / q['run']:.1f} %)")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import numpy as np
 from posegraph.analysis import rerun_scene as scene
 
 __all__ = ["require_rerun", "IterationRecorder", "log_graph", "log_estimate", "log_result", "optimize_blueprint",
-           "log_pose_values", "top_view", "strips",
+           "log_pose_values", "top_view", "strips", "edge_classes",
            "ITERATION_BUDGET", "ITERATION", "HEADINGS_MAX_POSES", "COVARIANCE_MAX_POSES"]
 
 ITERATION = "iteration"
@@ -90,14 +90,21 @@ def log_graph(rec, graph, poses=None, *, entity: str = "world/initial", colour=s
     rec.log(f"{entity}/poses", rr.Points3D(points, colors=colour, radii=THIN), static=static)
 
 
-def log_estimate(rec, graph, poses, points=None, *, entity: str = "world/estimate") -> None:
+def edge_classes(graph) -> tuple:
+    """``(("odometry", from, to), ("loop_closures", from, to))``: each class's edge end indices."""
+    odometry = graph.odometry_mask()
+    return tuple((name, graph.edge_from[mask], graph.edge_to[mask])
+                 for name, mask in (("odometry", odometry), ("loop_closures", ~odometry)))
+
+
+def log_estimate(rec, graph, poses, points=None, *, entity: str = "world/estimate", classes=None) -> None:
     """The estimate ``poses`` (and landmark ``points``) at the recording's current time: vertices as
-    points, edges as two-point line strips (their colours are logged static by :func:`log_result`)."""
+    points, edges as two-point line strips (their colours are logged static by :func:`log_result`);
+    ``classes``: :func:`edge_classes` of ``graph`` when already known."""
     rr = require_rerun()
     where = scene.positions(poses)
-    odometry = graph.odometry_mask()
-    for name, mask in (("odometry", odometry), ("loop_closures", ~odometry)):
-        rec.log(f"{entity}/{name}", strips(rr, scene.edge_segments(where, graph.edge_from[mask], graph.edge_to[mask])))
+    for name, tails, heads in classes or edge_classes(graph):
+        rec.log(f"{entity}/{name}", strips(rr, scene.edge_segments(where, tails, heads)))
     rec.log(f"{entity}/poses", rr.Points3D(where))
     if points is not None and len(points):
         rec.log(f"{entity}/landmarks", rr.Points3D(_points3(points)))
@@ -129,6 +136,7 @@ class IterationRecorder:
 
     def __init__(self, rec, graph, budget: int = ITERATION_BUDGET) -> None:
         self.rec, self.graph = rec, graph
+        self.classes = edge_classes(graph)
         frame = _frame_bytes(graph)
         self.budget = scene.FrameBudget(max(budget - 2 * frame, 0), frame)  # the start and the result always
         self.iteration = 0
@@ -154,7 +162,7 @@ class IterationRecorder:
 
     def _log(self, iteration: int, poses, points) -> None:
         self.rec.set_time(ITERATION, sequence=iteration)
-        log_estimate(self.rec, self.graph, poses, points)
+        log_estimate(self.rec, self.graph, poses, points, classes=self.classes)
         self.logged.append(iteration)
 
 
@@ -173,7 +181,9 @@ def log_result(rec, graph, result, *, weights=None, covariances=None, chi2: dict
     from posegraph.analysis.report import chi2_summary, edge_chi2
 
     weights = np.ones(graph.num_edges) if weights is None else np.asarray(weights, dtype=np.float64)
-    edge_values = edge_chi2(graph, result.poses)
+    residuals = result.final_residuals  # the solver's, when they are of this graph's edges
+    known = residuals is not None and np.shape(residuals) == (graph.num_edges, graph.information.shape[-1])
+    edge_values = edge_chi2(graph, result.poses, residuals if known else None)
     _log_edge_values(rec, graph, weights, edge_values)
     log_pose_values(rec, graph.ids, result.poses)
     _log_static_layers(rec, graph, result.poses, edge_values)
