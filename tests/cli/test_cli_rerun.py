@@ -207,3 +207,24 @@ def test_no_viewer_at_the_connect_address_is_one_line_before_any_solving(tmp_pat
     run = run_cli("optimize", EXAMPLE, "-o", tmp_path / "out.g2o", "--rerun-connect", f"127.0.0.1:{port}")
     assert_one_error_line(run, "--rerun-connect", f"127.0.0.1:{port}")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_landmark_graph_recordings_hold_the_landmarks(tmp_path):
+    """optimize (with covariances: poses' and points') and replay of a 2D landmark graph."""
+    from posegraph.io.g2o import read_g2o, write_g2o
+    from posegraph.lie.group import SE2
+    from datasets.synthetic import landmark_graph
+
+    graph, _, _ = landmark_graph(SE2, 30, 12, ("position", "bearing"), noise=0.02, seed=11, per_landmark=4)
+    path = tmp_path / "landmarks.g2o"
+    write_g2o(path, graph)
+    for command, extra in (("optimize", ["--covariances", tmp_path / "cov.npz"]), ("replay", [])):
+        out, rrd = tmp_path / f"{command}.g2o", tmp_path / f"{command}.rrd"
+        run = run_cli(command, path, "-o", out, "--rerun", rrd, "-q", *extra)
+        assert run.returncode == 0, run.stderr
+        static, temporal = read_recording(rrd)
+        points = np.asarray(last(temporal["/world/estimate/landmarks"], "Points3D:positions"))
+        written = read_g2o(out).landmarks
+        assert points.shape == (written.count, 3) and np.all(points[:, 2] == 0)
+        np.testing.assert_allclose(np.sort(points[:, 0]), np.sort(written.positions[:, 0]), atol=1e-4)
+        assert_final_poses_are_the_output(temporal["/world/estimate/poses"], out)
