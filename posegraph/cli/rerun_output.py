@@ -123,11 +123,11 @@ class Recording:
 
 @contextlib.contextmanager
 def open_recording(args, application: str):
-    """A :class:`Recording` for the run (None without a Rerun option), closed on leaving the block."""
+    """A :class:`Recording` for the run (None without a Rerun option), closed on leaving the block; the
+    options checked first by :func:`check_rerun_options` (with the command's other outputs)."""
     if not wants_rerun(args):
         yield None
         return
-    check_rerun_options(args)
     recording = Recording(args, application)
     try:
         yield recording
