@@ -126,7 +126,7 @@ def _frame_bytes(graph) -> int:
 
 class IterationRecorder:
     """Records an optimisation on the ``iteration`` timeline; pass it as
-    :attr:`~posegraph.solve.SolverParams.estimate_callback` (it chains ``callback``'s job: scalars per iteration).
+    :attr:`~posegraph.solve.SolverParams.estimate_callback`.
 
     ``start(poses, points)`` logs iteration 0; each call (one per solver iteration, every solve of a run
     counted in turn) logs the cost, λ and step norm, and the estimate when the budget takes it (a solve
