@@ -100,6 +100,9 @@ def test_optimize_gnc_recording_holds_the_graph_outliers_and_output(corrupted, t
     assert_final_poses_are_the_output(temporal["/world/estimate/poses"], out)
     np.testing.assert_allclose(np.asarray(poses), _pose_values(last_values(temporal["/world/estimate/poses"]))[1], atol=1e-4)
     assert "outlier edges" in static["/summary"]["TextDocument:text"][0]
+    rounds = temporal["/metrics/gnc/inliers"]
+    assert [time for time, _ in rounds] == list(range(len(rounds))) and len(rounds) > 1
+    assert all(0 < values["Scalars:scalars"][0] <= graph.num_edges for _, values in rounds)
 
 
 def last_values(rows: list) -> dict:
