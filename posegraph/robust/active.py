@@ -172,15 +172,17 @@ class ActiveEdgeSolves:
         problem = self._chordal.analysis if held is None else self._chordal.analysis.restricted(counted, held)
         return chordal_initialization(weighted, problem=problem)
 
-    def least_squares(self, start, weights: np.ndarray, callback=None):
+    def least_squares(self, start, weights: np.ndarray, callback=None, max_iterations: int | None = None):
         """:class:`~posegraph.solve.OptimizeResult` of LM on the weighted graph from ``start``: poses
-        ``(n, k, k)``, or a :class:`~posegraph.robust.measurements.Estimate` for a landmark graph."""
+        ``(n, k, k)``, or a :class:`~posegraph.robust.measurements.Estimate` for a landmark graph.
+        ``max_iterations`` caps the LM iterations of this solve (default: the parameters')."""
         from posegraph.solve import analyze, optimize
 
         weights, active = self._checked(weights)
         self._solver = self._analysed(self._solver, active, lambda sub: analyze(sub, self.params))
         weighted, _, held, held_points = self._restriction(self._solver, weights, active)
         params = self.params if callback is None else replace(self.params, callback=callback)
+        params = params if max_iterations is None else replace(params, max_iterations=max_iterations)
         points = None if self.graph.landmarks is None else start.points
         return optimize(weighted, initial=poses_of(start), params=params, analysis=self._solver.analysis, hold=held,
                         initial_points=points, hold_points=held_points)  # fmt: skip
