@@ -5,10 +5,15 @@
 What a gtsam user writes for robust pose-graph optimisation (gtsam's ``GncOptimizer`` tests and
 examples): ``readG2o(path, is3D=True)``; a tight prior on the first pose (its file value) to fix
 the gauge; the start from ``InitializePose3.initialize`` (gtsam's chordal relaxation + one
-Gauss-Newton refinement, the start of gtsam's own Pose3 SLAM examples); ``GncLMOptimizer`` with
+Gauss-Newton refinement, the start of gtsam's own Pose3 SLAM examples; for a 2D file — first line
+``VERTEX_SE2`` — ``readG2o(path, is3D=False)``, a ``PriorFactorPose2`` and ``lago.initialize``, gtsam's
+planar start); ``GncLMOptimizer`` with
 ``GncLMParams()`` defaults — TLS, μ step 1.4, relative cost tolerance 1e-5, weights tolerance
 1e-4, inlier thresholds at the χ² quantile 0.99 (gtsam's default for ``GncLMOptimizer``) — and
 known inliers: the odometry edges (consecutive vertex ids, in either direction) and the prior.
+
+When gtsam's initialiser fails (``InitializePose3`` raises "Indeterminate linear system" on some
+synthetic spheres), GNC starts from the file's poses instead and the report says ``"start": "file"``.
 
 The report is JSON: ``outlier_edges`` (0-based edge-line indices whose final weight is below
 0.5), ``poses`` file written beside it is not produced; the final poses go to ``--poses`` as a
@@ -36,15 +41,23 @@ def main() -> int:
 
     seconds = {"import": time.perf_counter() - _t0}
     t = time.perf_counter()
-    graph, initial = gtsam.readG2o(args.input, True)
+    with open(args.input) as stream:
+        planar = stream.readline().startswith("VERTEX_SE2")
+    graph, initial = gtsam.readG2o(args.input, not planar)
     m = graph.size()
     known = [k for k in range(m) if abs(graph.at(k).keys()[0] - graph.at(k).keys()[1]) == 1]
     first = min(initial.keys())
-    graph.add(gtsam.PriorFactorPose3(first, initial.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    if planar:
+        graph.add(gtsam.PriorFactorPose2(first, initial.atPose2(first), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    else:
+        graph.add(gtsam.PriorFactorPose3(first, initial.atPose3(first), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     known.append(m)
     seconds["read"] = time.perf_counter() - t
     t = time.perf_counter()
-    start = gtsam.InitializePose3.initialize(graph)
+    try:
+        start, start_name = (gtsam.lago.initialize(graph) if planar else gtsam.InitializePose3.initialize(graph)), "gtsam"
+    except RuntimeError:  # e.g. InitializePose3's "Indeterminate linear system" on some synthetic spheres
+        start, start_name = initial, "file"
     seconds["initialize"] = time.perf_counter() - t
     t = time.perf_counter()
     params = gtsam.GncLMParams()
@@ -55,10 +68,10 @@ def main() -> int:
     seconds["optimize"] = time.perf_counter() - t
     weights = np.asarray(optimizer.getWeights())[:m]
     keys = sorted(result.keys())
-    poses = np.stack([result.atPose3(k).matrix() for k in keys])
+    poses = np.stack([(result.atPose2(k) if planar else result.atPose3(k)).matrix() for k in keys])
     np.save(args.poses, poses)
     seconds["total"] = time.perf_counter() - _t0
-    report = {"outlier_edges": np.flatnonzero(weights < 0.5).tolist(), "seconds": seconds, "edges": m}
+    report = {"outlier_edges": np.flatnonzero(weights < 0.5).tolist(), "seconds": seconds, "edges": m, "start": start_name}
     with open(args.report, "w") as stream:
         json.dump(report, stream)
     return 0

@@ -74,12 +74,16 @@ MAX_RELEASE_ROUNDS = 3
 one suffices when a single wrong edge was trusted (a released edge is rejected, and the rest fit)."""
 
 READMISSION_PROBE_ITERATIONS = 1
-"""LM iterations over every measurement, from the robust answer, after which the re-admission trial
-(:func:`_readmission_trial`) goes on only if the TLS objective has dropped. One: from a nearby answer
-one step lands in the least-squares basin of a consistent graph (the bundled example: objective
-1,347.7 → 935.0 after one, 932.7 at convergence), while on a graph with wrong edges it raises the
-objective ninefold (sphere2500 + 20 %: 4,795 → 42,414; parking-garage + 10 %: 3,884 → 30,874), so a
-failed trial costs one iteration (``docs/robust.md``, "Clean graphs")."""
+"""LM iterations over the inliers and the candidates, from the robust answer, after which a
+re-admission trial (:func:`_readmission_trial`) goes on only if the TLS objective has dropped. One:
+from a nearby answer one step lands in the least-squares basin of a consistent set (the bundled
+example, every rejected edge readmitted: objective 1,347.7 → 935.0 after one, 932.7 at convergence),
+while wrong edges raise the objective ninefold at once (every edge readmitted on sphere2500 + 20 %:
+4,795 → 42,414; parking-garage + 10 %: 3,884 → 30,874), so a failed trial costs one iteration
+(``docs/robust.md``, "Clean graphs")."""
+
+MAX_READMISSION_TRIALS = 64
+"""Cap on the re-admission trials (:func:`_readmit`; levels ``2^k c̄²``, so 64 covers any finite residual)."""
 
 
 @dataclass
@@ -233,7 +237,7 @@ def optimize_robust(
     run, released, suspicious = _release_doubtful(graph, run, rerun, thresholds, doubt, strict_known_inliers)
     rejected = run.weights < 0.5
     if gnc.loss == "tls":
-        run = _readmission_trial(graph, run, solves, thresholds, history, progress)
+        run = _readmit(graph, run, solves, thresholds, history, progress)
     mu = m + num_priors(graph)
     return RobustResult(
         run.result.poses, run.weights[:m], run.result, run.start, history, sum(r.seconds_start for r in runs),
@@ -265,29 +269,49 @@ def doubt_thresholds(graph: PoseGraph, known: np.ndarray, gnc: GncParams) -> np.
     return inlier_thresholds(measurement_dimensions(graph), len(known), family)
 
 
-def _readmission_trial(graph, run: _Run, solves, thresholds, history: list, progress) -> _Run:
-    """``run``, or the answer of the least-squares basin when that has a lower TLS objective
-    (:func:`_tls_objective`): :data:`READMISSION_PROBE_ITERATIONS` LM iterations over every
-    measurement from ``run``'s result, and, only if the objective has dropped there, TLS rounds
-    (:func:`tls_alternation`) from that point, each of which lowers it further.
+def _readmit(graph, run: _Run, solves, thresholds, history: list, progress) -> _Run:
+    """``run`` after re-admission trials (:func:`_readmission_trial`) of its rejected, untrusted
+    measurements in order of their ``s / c̄²`` at its result: those at most ``2^k`` for ``k = 1, 2, …``
+    (levels no rejected measurement falls in are skipped), each trial from the answer of the last
+    accepted one, until one fails or none is left.
 
-    The TLS rounds judge each rejected edge at a solution fitted without it and without every other
-    rejected edge: a set of right edges rejected together (the chordal start misjudged a region)
-    bends the solution away from all of them, and no round readmits any. Fitted together, they
-    agree with the rest (the bundled example: 90 right loop closures rejected, at the least-squares
-    solution all below c̄²). Wrong edges raise the objective at the first step, which ends the trial."""
-    if not np.any((run.weights < 0.5) & ~run.known):
-        return run
+    Why: the TLS rounds judge each rejected edge at a solution fitted without it and without every
+    other rejected edge. Right edges rejected together (the chordal start misjudged a region) bend
+    the solution away from all of them, and no round readmits any: on the bundled example 90 right
+    loop closures stay rejected at s = 1.1–30 c̄², all below c̄² at the least-squares solution. Fitted
+    together they agree with the rest, and the TLS objective says so. The levels readmit the
+    edges nearest to consistent first, so that wrong edges (s ~ 1e5 c̄² and more) come last and end
+    the trials; the first trial on a graph whose rejected edges are all wrong is its last."""
+    level = 0
+    for _ in range(MAX_READMISSION_TRIALS):
+        rejected = (run.weights < 0.5) & ~run.known
+        if not rejected.any():
+            break
+        ratio = measurement_residuals(graph, estimate_of(graph, run.result)) / thresholds
+        level = max(level + 1, int(np.ceil(np.log2(max(float(np.min(ratio[rejected])), 2.0)))))
+        trial = _readmission_trial(graph, run, rejected & (ratio <= 2.0**level), solves, thresholds, history, progress)
+        if trial is None:
+            break
+        run = trial
+    return run
+
+
+def _readmission_trial(graph, run: _Run, candidates: np.ndarray, solves, thresholds, history: list, progress) -> _Run | None:
+    """The answer with ``candidates`` ``(m + u + q,)`` bool readmitted, or None when it does not lower
+    the TLS objective (:func:`_tls_objective`): :data:`READMISSION_PROBE_ITERATIONS` LM iterations
+    over ``run``'s inliers and the candidates from ``run``'s result — the trial ends there unless the
+    objective has dropped —, then TLS rounds (:func:`tls_alternation`) from that point, every
+    measurement judged again; each round lowers the objective further."""
     objective = _tls_objective(graph, run.known, thresholds)
     state = estimate_of(graph, run.result)
-    every = np.ones(len(run.weights))
-    probe = estimate_of(graph, solves.least_squares(state, every, max_iterations=READMISSION_PROBE_ITERATIONS))
+    weights = ((run.weights >= 0.5) | candidates).astype(np.float64)
+    probe = estimate_of(graph, solves.least_squares(state, weights, max_iterations=READMISSION_PROBE_ITERATIONS))
     if not objective(probe) < objective(state):
-        return run
+        return None
     judged = _inlier_test(graph, run.known, thresholds)
     weights, result = tls_alternation(solves, probe, judged(probe), judged, history, progress)
     if not objective(estimate_of(graph, result)) < objective(state):  # not reached: each round lowers it
-        return run
+        return None
     return _Run(run.start, weights, result, run.known, run.seconds_start)
 
 
