@@ -18,6 +18,10 @@ longer see it: the edges that disagree with it are rejected instead. Two guards:
   spanning it was rejected is contradicted by all of them (:func:`contradicted_odometry`). Such
   edges are released (GNC runs again without trusting them) unless the caller asks for
   strictness, and named either way.
+
+The caller chooses the thresholds: :func:`posegraph.robust.pipeline.optimize_robust` doubts by residual
+only above the family-wise χ² quantile over the trusted edges (``pipeline.doubt_thresholds``), since at
+``c̄²`` itself ~1 % of right trusted edges lie above it.
 """
 
 from __future__ import annotations
