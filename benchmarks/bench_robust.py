@@ -16,7 +16,8 @@ chordal start, ``GncLMOptimizer`` with TLS and its defaults, known inliers = odo
 Columns: precision and recall of the outlier set (edges with final weight < 0.5 against the
 injected ones), the cost on the *clean* graph at the result relative to the clean optimum
 (``optimize(clean)``), ATE (translation RMS after rigid alignment) against the clean optimum,
-seconds, and gtsam's seconds over ours. Figures are recorded in ``docs/robust.md``.
+seconds, and gtsam's seconds over ours. Figures are recorded in ``docs/robust.md``. Graphs without
+wrong edges (what robust mode must leave alone): :mod:`benchmarks.bench_robust_clean`.
 
 ``--kind``: ``random`` (the outliers join free vertex pairs), ``parallel`` (besides, :data:`PARALLEL_SHARE`
 of them each lie parallel to random odometry edges and to random loop closures, after the edge
