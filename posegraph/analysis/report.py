@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["REPORT_VERSION", "CHI2_PER_DOF_WARNING", "edge_chi2", "chi2_summary", "graph_info", "optimize_report"]
+__all__ = ["REPORT_VERSION", "CHI2_PER_DOF_WARNING", "edge_chi2", "chi2_summary", "dof_equation", "per_dof_text",
+           "graph_info", "optimize_report"]
 
 REPORT_VERSION = 2
 """Bumped when a key of :func:`optimize_report` changes meaning or disappears (2: ``start_cost``
@@ -120,9 +121,11 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
     """χ² of ``graph`` at ``poses`` and what it means (``residuals``: as in :func:`edge_chi2`).
 
     Keys: ``cost`` (½χ², the optimiser's cost and gtsam's ``error``), ``chi2`` (Σ eᵀΩe, g2o's
-    ``chi2``), ``dof`` = d·edges − d·free poses (d the tangent dimension, the information matrices'
-    size; free = neither ``FIX`` nor a gauge anchor; plus the dimensions of the priors' residuals),
-    ``chi2_per_dof`` (NaN when dof ≤ 0), ``by_kind`` (``odometry``, ``loop_closure`` and, with
+    ``chi2``), ``dof`` = the measurements' rows − the free unknowns: d·edges (d the tangent dimension,
+    the information matrices' size) + the priors' and each landmark family's residual rows (r·q) −
+    d·free poses (neither ``FIX`` nor a gauge anchor) − s·free points (s the space dimension),
+    ``dof_parts`` (``{"rows": [...], "unknowns": [...]}``, each term ``{"what", "count", "size"}``,
+    :func:`dof_equation` prints them), ``chi2_per_dof`` (NaN when dof ≤ 0), ``by_kind`` (``odometry``, ``loop_closure`` and, with
     priors, ``prior``, with landmarks, ``landmark`` (their measurements, at the graph's landmark
     positions; their residuals' rows count in ``dof``, their free points' ``s`` each against it):
     ``count``, ``chi2``, ``chi2_per_edge``)
@@ -133,8 +136,9 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
 
     chi2 = edge_chi2(graph, poses, residuals)
     d = graph.information.shape[-1]
-    held = held_vertices(graph)
-    dof = d * graph.num_edges - d * (graph.num_vertices - int(np.count_nonzero(held)))
+    free = graph.num_vertices - int(np.count_nonzero(held_vertices(graph)))
+    rows = [_term("edges", graph.num_edges, d)]
+    unknowns = [_term("free poses", free, d)]
     odometry = graph.odometry_mask()
     by_kind = {}
     for kind, mask in (("odometry", odometry), ("loop_closure", ~odometry)):
@@ -143,15 +147,17 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
         by_kind[kind] = {"count": count, "chi2": part, "chi2_per_edge": part / count if count else float("nan")}
     total = float(chi2.sum())
     if graph.priors is not None:  # unary edges: their χ² and their residuals' dimensions count too
-        prior, prior_dof = _prior_chi2(graph, poses)
+        prior, prior_rows = _prior_chi2(graph, poses)
         by_kind["prior"] = {"count": len(prior), "chi2": float(prior.sum()),
                             "chi2_per_edge": float(prior.mean()) if len(prior) else float("nan")}
-        total, dof = total + float(prior.sum()), dof + prior_dof
+        total, rows = total + float(prior.sum()), rows + prior_rows
     if graph.landmarks is not None:
-        landmark, landmark_dof = _landmark_chi2(graph, poses)
+        landmark, landmark_rows, free_points = _landmark_chi2(graph, poses)
         by_kind["landmark"] = {"count": len(landmark), "chi2": float(landmark.sum()),
                                "chi2_per_edge": float(landmark.mean()) if len(landmark) else float("nan")}
-        total, dof = total + float(landmark.sum()), dof + landmark_dof
+        total, rows = total + float(landmark.sum()), rows + landmark_rows
+        unknowns.append(free_points)
+    dof = sum(t["count"] * t["size"] for t in rows) - sum(t["count"] * t["size"] for t in unknowns)
     lines = getattr(graph, "edge_lines", None)
     worst = []
     for e in np.argsort(-chi2, kind="stable")[:WORST_EDGES]:
@@ -159,30 +165,50 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
                       "from_id": int(graph.ids[graph.edge_from[e]]), "to_id": int(graph.ids[graph.edge_to[e]]),
                       "chi2": float(chi2[e])})
     return {"cost": total / 2, "chi2": total, "dof": int(dof), "chi2_per_dof": total / dof if dof > 0 else float("nan"),
-            "by_kind": by_kind, "worst_edges": worst}
+            "dof_parts": {"rows": rows, "unknowns": unknowns}, "by_kind": by_kind, "worst_edges": worst}
 
 
-def _landmark_chi2(graph, poses=None) -> tuple[np.ndarray, int]:
-    """``((Σq,) χ² of each landmark measurement, Σ r·q − s·free landmarks)`` at ``poses`` and the
-    graph's landmark positions."""
+def _term(what: str, count: int, size: int) -> dict:
+    return {"what": what, "count": int(count), "size": int(size)}
+
+
+def dof_equation(chi2: dict) -> str:
+    """``"6·4949 edges − 6·2499 free poses = 14700"``: :func:`chi2_summary`'s ``dof`` as the measurement
+    rows it counts minus the free unknowns (terms with a zero count left out)."""
+    parts = chi2["dof_parts"]
+    text = " + ".join(f"{t['size']}·{t['count']} {t['what']}" for t in parts["rows"] if t["count"]) or "0 rows"
+    text += "".join(f" − {t['size']}·{t['count']} {t['what']}" for t in parts["unknowns"] if t["count"])
+    return f"{text} = {chi2['dof']}"
+
+
+def per_dof_text(chi2: dict) -> str:
+    """χ²/dof to 4 digits, or ``"undefined (dof 0)"`` when dof ≤ 0 (nothing over-determined)."""
+    return f"{chi2['chi2_per_dof']:.4g}" if chi2["dof"] > 0 else f"undefined (dof {chi2['dof']})"
+
+
+def _landmark_chi2(graph, poses=None) -> tuple[np.ndarray, list, dict]:
+    """``((Σq,) χ² of each landmark measurement, one dof row term per family (its r·q), the free
+    points' term (s each))`` at ``poses`` and the graph's landmark positions."""
     from posegraph.solve.landmark_terms import landmark_errors
 
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
     landmarks = graph.landmarks
     errors = landmark_errors(graph, poses, landmarks.positions)
-    rows = sum(e.shape[0] * e.shape[1] for e in errors.residuals)
+    rows = [_term(f"{family.kind.replace('_', '-')} measurements", e.shape[0], e.shape[1])
+            for family, e in zip(landmarks.observations, errors.residuals)]
     free = landmarks.count - int(np.count_nonzero(landmarks.fixed))
-    return errors.squared, rows - landmarks.space_dim * free
+    return errors.squared, rows, _term("free points", free, landmarks.space_dim)
 
 
-def _prior_chi2(graph, poses=None) -> tuple[np.ndarray, int]:
-    """``((a + b,) χ² of each prior, the dimensions of their residuals d·a + r·b)`` at ``poses``."""
+def _prior_chi2(graph, poses=None) -> tuple[np.ndarray, list]:
+    """``((a + b,) χ² of each prior, the dof row terms of the pose and position priors)`` at ``poses``."""
     from posegraph.solve.unary import prior_errors, prior_squared_norms
 
     poses = graph.poses if poses is None else np.asarray(poses, dtype=np.float64)
     priors = graph.priors
-    dof = graph.group.dim * priors.num_pose + graph.group.space_dim * priors.num_position
-    return prior_squared_norms(prior_errors(poses, graph), priors), dof
+    rows = [_term("pose priors", priors.num_pose, graph.group.dim),
+            _term("position priors", priors.num_position, graph.group.space_dim)]
+    return prior_squared_norms(prior_errors(poses, graph), priors), rows
 
 
 def optimize_report(

@@ -115,7 +115,12 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
     rows.append((f"information, {size}x{size}", f"eigenvalues {whole['eigenvalue_min']:.4g} .. {whole['eigenvalue_max']:.4g}; "
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
     rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (½χ² at the file's poses; χ² "
-                                 f"{fmt_cost(info['chi2'])}, χ²/dof {info['chi2_per_dof']:.4g}, dof {info['dof']})"))
+                                 f"{fmt_cost(info['chi2'])}, χ²/dof {_per_dof(info)}, dof {info['dof']})"))
     for refusal in info["optimize_refuses"]:
         rows.append(("optimize refuses", refusal))
     return rows
+
+
+def _per_dof(info: dict) -> str:
+    """χ²/dof, or "undefined" when dof ≤ 0."""
+    return f"{info['chi2_per_dof']:.4g}" if info["dof"] > 0 else "undefined"

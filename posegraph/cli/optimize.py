@@ -130,16 +130,19 @@ def _run(args, recording) -> int:
     inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights, landmark_weights=landmark_weights)  # robust: χ², covariances of those kept
     # the solver's last residuals are those of `inliers` unless the robust path dropped edges
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
+    if weights is not None:  # robust: χ² over every measurement too, at the same poses
+        chi2["every"] = chi2_summary(held, result.poses)
+    verdict = _judge_edges(held, result, params) if args.robust == "none" else None
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
     record_optimize_result(recorder, held, result, weights=weights, covariances=covariances, chi2=chi2, robust=robust,
                            title=f"posegraph optimize {os.path.basename(display_name(args.input))}")
     _write_outputs(args, status, graph, result, params, file_cost, seconds, chi2, weights, covariances, known,
-                   prior_weights, certified, landmark_weights, recording)
+                   prior_weights, certified, landmark_weights, recording, verdict)
     if not args.quiet:
         _print_summary(args, graph, result, params, file_cost, seconds, chi2, certified)
         robust_summary(graph, weights, args, prior_weights, landmark_weights)
-    _warn_if_chi2_high(chi2)
+    _warn_if_broken(held, chi2, verdict)
     warn_about_known_inliers(graph, known)
     drawn = _draw(args, status, graph, result) if args.plot else True
     if result.converged:
@@ -238,7 +241,7 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
 def _write_outputs(
     args, status: Status, graph, result, params, file_cost, seconds, chi2, weights=None, covariances=None, known=None,
-    prior_weights=None, certified=None, landmark_weights=None, recording=None,
+    prior_weights=None, certified=None, landmark_weights=None, recording=None, verdict=None,
 ) -> None:
     """The result, the report and the covariances if asked, staged and renamed into place together
     (``-``: printed after)."""
@@ -265,6 +268,7 @@ def _write_outputs(
             )
             if certified is not None:
                 report["certify"] = certified
+            _report_chi2_and_verdict(report, graph, chi2, verdict)
             report = json_text(robust_report(report, args, weights, known, prior_weights, graph, landmark_weights))
             if args.report == STDIO:
                 printed.append(report)
@@ -309,15 +313,16 @@ def _draw(args, status: Status, graph, result) -> bool:
 
 def _print_summary(args, graph, result, params, file_cost: float, seconds: dict, chi2: dict, certified=None) -> None:
     """The summary, on stdout (stderr when stdout carries the result or the report)."""
+    from posegraph.analysis.report import dof_equation, per_dof_text
+
     out = sys.stderr if STDIO in (args.output, args.report) else sys.stdout
     lines = [
         f"input:          {display_name(args.input)} ({graph_size(graph)})",
         f"file cost:      {fmt_cost(file_cost)}",
         f"initial cost:   {fmt_cost(result.initial_cost)} (after {args.init} initialisation)",
-        f"final cost:     {fmt_cost(result.final_cost)} (cost = ½χ² = ½ Σ eᵀΩe, gtsam's error)",
-        f"final χ²:       {fmt_cost(chi2['chi2'])} (Σ eᵀΩe, as g2o prints it)",
-        f"χ²/dof:         {chi2['chi2_per_dof']:.4g} (dof = {_dof_text(graph, chi2)}; ≈ 1 when the "
-        "information matrices describe the noise)",
+        *_cost_lines(args, params, result, chi2),
+        f"χ²/dof:         {per_dof_text(chi2)} ({'of the inliers; ' if 'every' in chi2 else ''}dof = {dof_equation(chi2)}; "
+        "≈ 1 when the information matrices describe the noise)",
         f"iterations:     {result.iterations}",
         f"termination:    {result.termination} ({stop_reason(result, params)})",
         f"linear solver:  {result.linear_solver}",
@@ -335,14 +340,22 @@ def _print_summary(args, graph, result, params, file_cost: float, seconds: dict,
     print("\n".join(lines), file=out, flush=True)
 
 
-def _dof_text(graph, chi2: dict) -> str:
-    d = graph.information.shape[-1]
-    edges = sum(kind["count"] for name, kind in chi2["by_kind"].items() if name != "prior")  # --robust: inliers
-    priors = graph.priors
-    prior_dims = d * priors.num_pose + graph.group.space_dim * priors.num_position if priors is not None else 0
-    free = (d * edges + prior_dims - chi2["dof"]) // d
-    prior_text = f" + {prior_dims} of {len(priors)} priors" if priors is not None else ""
-    return f"{d}·{edges} edges{prior_text} − {d}·{free} free poses = {chi2['dof']}"
+def _cost_lines(args, params, result, chi2: dict) -> list[str]:
+    """The final cost, labelled as what the solver minimised, and χ² = Σ eᵀΩe over every measurement
+    at the result; with a robust mode, plain ½χ² beside the robust cost and the inliers' χ² after."""
+    if "every" not in chi2:
+        return [f"final cost:     {fmt_cost(result.final_cost)} (cost = ½χ² = ½ Σ eᵀΩe, gtsam's error)",
+                f"final χ²:       {fmt_cost(chi2['chi2'])} (Σ eᵀΩe, as g2o prints it)"]
+    every = chi2["every"]
+    kept = sum(kind["count"] for kind in chi2["by_kind"].values())
+    total = sum(kind["count"] for kind in every["by_kind"].values())
+    minimised = ("½ Σ w·eᵀΩe with GNC's weights w: ½χ² of the measurements kept" if args.robust == "gnc" else
+                 f"robust cost ½ Σ ρ(eᵀΩe), {args.robust} loss: what the solver minimised")
+    return [f"final cost:     {fmt_cost(result.final_cost)} ({minimised})",
+            f"final ½χ²:      {fmt_cost(every['cost'])} (½ Σ eᵀΩe over all {total} measurements at the result, "
+            "gtsam's error without the loss)",
+            f"final χ²:       {fmt_cost(every['chi2'])} (Σ eᵀΩe over all {total} measurements, as g2o prints it)",
+            f"inliers' χ²:    {fmt_cost(chi2['chi2'])} (Σ eᵀΩe over the {kept} of weight ≥ 0.5)"]
 
 
 def _stats_table(chi2: dict) -> list[str]:
@@ -357,16 +370,53 @@ def _stats_table(chi2: dict) -> list[str]:
     return lines
 
 
-def _warn_if_chi2_high(chi2: dict) -> None:
-    """One warning when χ²/dof is far above 1 (:data:`posegraph.analysis.report.CHI2_PER_DOF_WARNING`)."""
+def _judge_edges(held, result, params):
+    """:func:`posegraph.analysis.suspicious.suspicious_edges` at the least-squares result (``held``: with
+    ``--fix``, landmarks at the result)."""
+    from posegraph.analysis.suspicious import suspicious_edges
+
+    return suspicious_edges(held, result.poses, params)
+
+
+def _report_chi2_and_verdict(report: dict, graph, chi2: dict, verdict) -> None:
+    """The report's ``chi2_every`` (robust: χ² over every measurement at the result; its top-level ``chi2``
+    is the inliers') and ``suspicious_edges`` (least squares: the broken-map check, every edge named)."""
+    if "every" in chi2:
+        every = chi2["every"]
+        report["chi2_every"] = {"chi2": every["chi2"], "half_chi2": every["cost"], "dof": every["dof"],
+                                "chi2_per_dof": every["chi2_per_dof"]}
+    if verdict is not None:
+        report["suspicious_edges"] = verdict.as_dict(graph)
+
+
+SHOWN_SUSPICIOUS = 5
+"""How many suspicious edges the broken-map warning names (the report lists them all)."""
+
+
+def _warn_if_broken(graph, chi2: dict, verdict) -> None:
+    """One warning: the broken-map verdict naming the suspicious edges, with χ²/dof if far above 1
+    (:data:`posegraph.analysis.report.CHI2_PER_DOF_WARNING`); or χ²/dof alone when no edge stands out."""
     from posegraph.analysis.report import CHI2_PER_DOF_WARNING
 
-    if not chi2["chi2_per_dof"] > CHI2_PER_DOF_WARNING:
-        return
-    worst = ", ".join(
-        (f"line {e['line']}" if e["line"] is not None else "edge")
-        + f" ({e['from_id']}->{e['to_id']}, χ² {e['chi2']:.3g})" for e in chi2["worst_edges"]
-    )
-    warn(f"χ²/dof = {chi2['chi2_per_dof']:.3g} is far above the ≈1 the information matrices predict "
-         f"(> {CHI2_PER_DOF_WARNING:g}): outliers or overconfident edges? largest χ²: {worst}; "
-         "try --robust gnc")
+    high = chi2["chi2_per_dof"] > CHI2_PER_DOF_WARNING
+    ratio = (f"χ²/dof = {chi2['chi2_per_dof']:.3g} is far above the ≈1 the information matrices predict "
+             f"(> {CHI2_PER_DOF_WARNING:g})")
+    if verdict is not None and verdict.broken:
+        shown = "; ".join(_edge_text(row) for row in verdict.rows(graph, SHOWN_SUSPICIOUS))
+        more = f" (and {len(verdict.edges) - SHOWN_SUSPICIOUS} more)" if len(verdict.edges) > SHOWN_SUSPICIOUS else ""
+        warn((f"{ratio}; " if high else "") + f"the map looks broken: {len(verdict.edges)} loop closure"
+             f"{'s' if len(verdict.edges) != 1 else ''} disagree with the rest of the graph (with them down-weighted, "
+             f"the other edges' χ² falls {verdict.gain:.3g}-fold): {shown}{more}; wrong loop closures? "
+             "try --robust gnc")
+    elif high:
+        worst = ", ".join(_edge_text(e) for e in chi2["worst_edges"])
+        standout = ("; no edge stands out from the rest: overconfident information matrices?"
+                    if verdict is not None and verdict.judged else ": outliers or overconfident edges?")
+        warn(f"{ratio}{standout} largest χ²: {worst}" + ("" if verdict is not None and verdict.judged
+                                                          else "; try --robust gnc"))
+
+
+def _edge_text(edge: dict) -> str:
+    """``"line 12 (3->40, χ² 1.2e+03)"`` (``edge N`` without a file line)."""
+    where = f"line {edge['line']}" if edge["line"] is not None else "edge"
+    return f"{where} ({edge['from_id']}->{edge['to_id']}, χ² {edge['chi2']:.3g})"
