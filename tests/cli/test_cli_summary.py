@@ -1,5 +1,5 @@
-"""What `optimize` prints and reports, as a g2o or gtsam user reads it: ½χ², χ², χ²/dof, the
-warning on a garbage answer, why the run stopped, progress, `--stats`, the report's fields."""
+"""What `optimize` prints and reports, as a g2o or gtsam user reads it: ½χ², χ², χ²/dof (robust
+and landmark graphs too), the warning on a broken map, why the run stopped, progress, `--stats`, the report's fields."""
 
 from __future__ import annotations
 
@@ -105,27 +105,132 @@ def outlier_grid(folder, outliers: float):
     return path, dataset
 
 
-def test_garbage_answer_is_warned_naming_the_worst_edges_by_line(tmp_path):
+def _edge_lines(path) -> list[int]:
+    lines = path.read_text().splitlines()
+    return [k + 1 for k, line in enumerate(lines) if line.startswith("EDGE_SE3:QUAT")]
+
+
+def test_broken_map_is_warned_naming_the_wrong_loop_closures_by_line(tmp_path):
+    """10 % wrong loop closures, plain least squares: exit 0 (it converged, to the wrong answer) and one
+    warning saying the map looks broken, naming five of the wrong edges by line and ids, suggesting GNC;
+    the report lists every suspicious edge, each a wrong one."""
     path, dataset = outlier_grid(tmp_path, 0.1)
-    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--quiet")
-    assert run.returncode == 0, run.stderr  # it converged: to the wrong answer
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--quiet", "--report", report)
+    assert run.returncode == 0, run.stderr
     assert len(run.stderr_lines) == 1, run.stderr
     warning = run.stderr_lines[0]
     assert warning.startswith("posegraph: warning: χ²/dof = ") and "--robust gnc" in warning
+    assert "the map looks broken" in warning
     assert float(re.search(r"χ²/dof = (\S+)", warning).group(1)) > 100
     named = [(int(n), int(i), int(j)) for n, i, j in re.findall(r"line (\d+) \((\d+)->(\d+)", warning)]
-    assert len(named) == 3
+    assert len(named) == 5
     lines = path.read_text().splitlines()
-    edge_lines = [k + 1 for k, line in enumerate(lines) if line.startswith("EDGE_SE3:QUAT")]
+    edge_lines = _edge_lines(path)
     outlier_lines = {edge_lines[e] for e in np.flatnonzero(dataset.outliers)}
-    for number, i, j in named:  # each a real edge line, with the ids printed
+    for number, i, j in named:  # each a wrong edge's line, with its ids printed
         assert lines[number - 1].split()[1:3] == [str(i), str(j)]
-    assert any(number in outlier_lines for number, _, _ in named)
+        assert number in outlier_lines
+    verdict = json.loads(report.read_text())["suspicious_edges"]
+    assert verdict["broken"] and verdict["agreement_gain"] > 10
+    assert {e["line"] for e in verdict["edges"]} <= outlier_lines and verdict["count"] >= 0.8 * len(outlier_lines)
 
     clean, _ = outlier_grid(tmp_path, 0.0)
-    run = run_cli("optimize", clean, "-o", tmp_path / "clean.g2o")
+    run = run_cli("optimize", clean, "-o", tmp_path / "clean.g2o", "--report", report)
     assert run.returncode == 0 and "warning" not in run.stderr, run.stderr
     assert float(printed(run.stdout, "χ²/dof")) == pytest.approx(1.0, abs=0.2)
+    assert json.loads(report.read_text())["suspicious_edges"] == {**json.loads(report.read_text())["suspicious_edges"],
+                                                                  "broken": False, "count": 0, "edges": []}
+
+
+def _scaled_copy(path, folder, factor: float):
+    import dataclasses
+
+    from posegraph.io.g2o import read_g2o, write_g2o
+
+    graph = read_g2o(path)
+    scaled = folder / f"scaled-{factor:g}.g2o"
+    write_g2o(scaled, dataclasses.replace(graph, information=graph.information * factor, edge_source=None))
+    return scaled
+
+
+@pytest.mark.parametrize("factor", [0.01, 100.0])
+def test_clean_graph_with_misstated_information_is_not_called_broken(tmp_path, factor):
+    """A clean grid whose information matrices understate (×0.01) or overstate (×100) the noise: no
+    broken-map warning; overstated, the χ²/dof warning says no edge stands out instead."""
+    clean, _ = outlier_grid(tmp_path, 0.0)
+    run = run_cli("optimize", _scaled_copy(clean, tmp_path, factor), "-o", tmp_path / "out.g2o", "-q")
+    assert run.returncode == 0, run.stderr
+    assert "broken" not in run.stderr
+    if factor < 1:
+        assert run.stderr_lines == []
+    else:
+        assert len(run.stderr_lines) == 1 and "no edge stands out from the rest" in run.stderr_lines[0]
+        assert "--robust gnc" not in run.stderr_lines[0]
+
+
+def test_robust_runs_are_not_judged_again(tmp_path):
+    """With --robust the outliers are reported by the robust mode: no broken-map check, no verdict in the report."""
+    path, _ = outlier_grid(tmp_path, 0.1)
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--robust", "gnc", "--report", report, "-q")
+    assert run.returncode == 0, run.stderr
+    assert "broken" not in run.stderr and "suspicious_edges" not in json.loads(report.read_text())
+
+
+def test_robust_loss_summary_labels_the_robust_cost_and_prints_the_true_chi2(tmp_path):
+    """--robust cauchy: the final cost is the robust cost ½ Σ ρ(eᵀΩe), labelled so; ½χ² and χ² are
+    Σ eᵀΩe over every edge at the written poses; the inliers' χ² and χ²/dof beside them."""
+    from posegraph.analysis.report import edge_chi2
+    from posegraph.io.g2o import read_g2o
+    from posegraph.robust import make_loss
+
+    path, _ = outlier_grid(tmp_path, 0.1)
+    out, report = tmp_path / "out.g2o", tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", out, "--robust", "cauchy", "--report", report)
+    assert run.returncode == 0, run.stderr
+    graph, poses = read_g2o(path), read_g2o(out).poses
+    chi2 = edge_chi2(graph, poses)
+    cost_line = printed_line(run.stdout, "final cost")
+    assert "robust cost ½ Σ ρ(eᵀΩe), cauchy loss" in cost_line and "½χ² =" not in cost_line
+    robust_cost = 0.5 * float(np.sum(make_loss("cauchy").rho(chi2)))
+    assert float(printed(run.stdout, "final cost")) == pytest.approx(robust_cost, rel=1e-6)
+    assert float(printed(run.stdout, "final ½χ²")) == pytest.approx(chi2.sum() / 2, rel=1e-6)
+    assert float(printed(run.stdout, "final χ²")) == pytest.approx(chi2.sum(), rel=1e-6)
+    assert float(printed(run.stdout, "final χ²")) > 100 * float(printed(run.stdout, "inliers' χ²"))
+    assert "of the inliers; dof = 6·" in printed_line(run.stdout, "χ²/dof")
+    data = json.loads(report.read_text())
+    assert data["chi2_every"]["chi2"] == pytest.approx(chi2.sum(), rel=1e-6)
+    assert data["chi2"] == pytest.approx(float(printed(run.stdout, "inliers' χ²")), rel=1e-6)
+
+
+def test_landmark_dof_counts_rows_per_family_and_points_as_points(tmp_path):
+    """The dof line of a landmark graph: pose edges' rows, each family's rows, free poses and free points."""
+    from datasets.synthetic import landmark_graph
+    from posegraph.io.g2o import write_g2o
+    from posegraph.lie.group import SE2
+
+    graph, _, _ = landmark_graph(SE2, 30, 12, ("position", "bearing"), noise=0.02, seed=11, per_landmark=4)
+    path = tmp_path / "landmarks.g2o"
+    write_g2o(path, graph)
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--report", tmp_path / "r.json")
+    assert run.returncode == 0, run.stderr
+    assert ("(dof = 3·29 edges + 2·48 position measurements + 1·48 bearing measurements − 3·29 free poses "
+            "− 2·12 free points = 120;") in printed_line(run.stdout, "χ²/dof")
+    assert json.loads((tmp_path / "r.json").read_text())["dof"] == 120
+
+
+def test_zero_dof_prints_undefined_and_reports_null(tmp_path):
+    """An odometry chain (a tree: as many rows as free unknowns): χ²/dof undefined, null in the report."""
+    path = tmp_path / "chain.g2o"
+    path.write_text("".join(f"VERTEX_SE2 {k} {k} 0 0\n" for k in range(4))
+                    + "".join(f"EDGE_SE2 {k} {k + 1} 1 0 0.1 1 0 0 1 0 1\n" for k in range(3)))
+    report = tmp_path / "r.json"
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--report", report)
+    assert run.returncode == 0, run.stderr
+    assert printed_line(run.stdout, "χ²/dof").startswith("χ²/dof:         undefined (dof 0) (dof = 3·3 edges − 3·3 free poses = 0;")
+    data = json.loads(report.read_text(), parse_constant=lambda name: pytest.fail(f"non-strict JSON {name}"))
+    assert data["dof"] == 0 and data["chi2_per_dof"] is None
 
 
 def test_slow_phases_announce_themselves_on_large_graphs(monkeypatch, capsys, tmp_path, shared_dataset):
