@@ -45,6 +45,9 @@ ROUNDS = 3
 """Refits, each from the last one's poses with c² from its level."""
 ITERATIONS_PER_ROUND = 10
 """The iteration cap of each refit (its solves start near their answer)."""
+REFIT_TOLERANCE = 1e-4
+"""Each refit stops when an iteration lowers its cost by at most this fraction: the verdict needs the
+levels to a per cent, not the refit's optimum to the solver's 1e-7."""
 STANDOUT = 30.0
 """An edge whose refit χ² is above this many times the refit level (and grew in the refit) is named suspicious."""
 BROKEN_GAIN = 2.5
@@ -139,14 +142,16 @@ def _refit_chi2(graph, poses, chi2, loops, params) -> np.ndarray:
     from dataclasses import replace
 
     from posegraph.analysis.report import edge_chi2
-    from posegraph.solve import SolverParams, optimize
+    from posegraph.solve import SolverParams, analyze, optimize
 
     base = SolverParams() if params is None else replace(params, callback=None)
+    analysis = analyze(graph, base)  # the symbolic work, once for every round
     for _ in range(ROUNDS):
         level = float(np.median(chi2[loops]))
         if not level > 0:  # the loop closures agree exactly: nothing to down-weight against
             break
-        loss = _Cauchy(LEVEL_MULTIPLE * level)
-        poses = optimize(graph, initial=poses, params=replace(base, loss=loss, max_iterations=ITERATIONS_PER_ROUND)).poses
+        round_params = replace(base, loss=_Cauchy(LEVEL_MULTIPLE * level), max_iterations=ITERATIONS_PER_ROUND,
+                               relative_tolerance=REFIT_TOLERANCE)
+        poses = optimize(graph, initial=poses, params=round_params, analysis=analysis).poses
         chi2 = edge_chi2(graph, poses)
     return chi2

@@ -410,10 +410,10 @@ def _warn_if_broken(graph, chi2: dict, verdict) -> None:
              "try --robust gnc")
     elif high:
         worst = ", ".join(_edge_text(e) for e in chi2["worst_edges"])
-        standout = ("; no edge stands out from the rest: overconfident information matrices?"
-                    if verdict is not None and verdict.judged else ": outliers or overconfident edges?")
-        warn(f"{ratio}{standout} largest χ²: {worst}" + ("" if verdict is not None and verdict.judged
-                                                          else "; try --robust gnc"))
+        standout = ("; no edge stands out from the rest: information matrices that overstate the noise, or wrong "
+                    "edges bending the whole map?" if verdict is not None and verdict.judged
+                    else ": outliers or overconfident edges?")
+        warn(f"{ratio}{standout} largest χ²: {worst}; try --robust gnc")
 
 
 def _edge_text(edge: dict) -> str:

@@ -31,7 +31,7 @@ def test_optimize_reports_the_cost_with_the_priors_and_writes_them_back(tmp_path
 
     data = json.loads(report.read_text())
     assert data["final_cost"] == pytest.approx(cost(result), rel=1e-9)
-    assert "+ 9 of 3 priors" in run.stdout and "prior" in run.stdout
+    assert "+ 3·3 position priors − 6·3 free poses = 9" in run.stdout and "prior" in run.stdout
     # the priors moved the graph: vertex 0 (held without priors) is near its GNSS fix, not at the origin
     assert np.linalg.norm(result.poses[0, :3, 3] - [5, -3, 2]) < 1.0
     assert output.read_text().splitlines()[-4:] == PRIORS_3D.splitlines()
