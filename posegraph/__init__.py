@@ -42,6 +42,7 @@ _LAZY = {
     "marginal_covariances": "posegraph.analysis.covariance",
     "joint_covariance": "posegraph.analysis.covariance",
     "landmark_covariances": "posegraph.analysis.covariance",
+    "suspicious_edges": "posegraph.analysis.suspicious",
     "optimize_many": "posegraph.batch.many",
     "certify": "posegraph.certification.certificate",
     "Certificate": "posegraph.certification.certificate",

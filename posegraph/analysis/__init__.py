@@ -1,4 +1,5 @@
 """What is learnt from a solved graph: marginal covariances (:mod:`posegraph.analysis.covariance`),
 trajectory metrics against a reference (:mod:`posegraph.analysis.evaluate`: ATE, RPE), the JSON reports
-(:mod:`posegraph.analysis.report`) and figures (:mod:`posegraph.analysis.plot`). Above the solver; the
+(:mod:`posegraph.analysis.report`), the broken-map check
+(:mod:`posegraph.analysis.suspicious`) and figures (:mod:`posegraph.analysis.plot`). Above the solver; the
 command imports these."""
