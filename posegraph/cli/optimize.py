@@ -27,9 +27,10 @@ DESCRIPTION = (
     "Optimise the vertex poses of a g2o file and write a g2o file with the same edges and FIX lines "
     "and the optimised vertices. Progress (one line per iteration: cost, decrease, LM lambda, "
     "seconds) goes to stderr; a summary to stdout: the cost (1/2 chi2, as gtsam's error), chi2 "
-    "(as g2o prints it) and chi2/dof, with a warning naming the worst edges when chi2/dof is far "
-    "above 1. IN or OUT may be - (standard input / output). Exit status 1 (result still written) "
-    "when the iteration cap ends the run before convergence or the figure could not be drawn."
+    "(as g2o prints it) and chi2/dof, with a warning naming the suspicious loop closures when the edges, "
+    "judged against each other, say the map is broken (not after --robust; --no-map-check skips it), "
+    "and one naming the worst edges when chi2/dof is far above 1. IN or OUT may be - (standard input / "
+    "output). Exit status 1 (result still written) when the iteration cap ends the run before convergence or the figure could not be drawn."
 )
 EXAMPLES = """
   posegraph optimize tinyGrid3D.g2o -o tiny-opt.g2o
@@ -74,6 +75,9 @@ def file_options(p) -> None:
                         "their component instead of its smallest id); OUT keeps the file's FIX lines only")
     p.add_argument("--stats", action="store_true",
                    help="print count, chi2 and chi2 per edge by edge kind (odometry, loop closure) at the result")
+    p.add_argument("--no-map-check", action="store_true",
+                   help="skip the broken-map check after a least-squares solve (edges judged against each other by "
+                        "short robust refits, about one to three times the solve's time; docs/robust.md)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--certify", action="store_true",
                    help="also certify SE-Sync's isotropic problem (posegraph certify), polish its estimate with LM on "
@@ -132,7 +136,7 @@ def _run(args, recording) -> int:
     chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
     if weights is not None:  # robust: χ² over every measurement too, at the same poses
         chi2["every"] = chi2_summary(held, result.poses)
-    verdict = _judge_edges(held, result, params) if args.robust == "none" else None
+    verdict = _judge_edges(held, result, params) if args.robust == "none" and not args.no_map_check else None
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
     record_optimize_result(recorder, held, result, weights=weights, covariances=covariances, chi2=chi2, robust=robust,

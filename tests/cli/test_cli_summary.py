@@ -168,11 +168,13 @@ def test_clean_graph_with_misstated_information_is_not_called_broken(tmp_path, f
         assert len(run.stderr_lines) == 1 and "no edge stands out from the rest" in run.stderr_lines[0]
 
 
-def test_robust_runs_are_not_judged_again(tmp_path):
-    """With --robust the outliers are reported by the robust mode: no broken-map check, no verdict in the report."""
+@pytest.mark.parametrize("option", [["--robust", "gnc"], ["--no-map-check"]])
+def test_robust_runs_are_not_judged_again_nor_when_asked_not_to(tmp_path, option):
+    """With --robust the outliers are reported by the robust mode, and --no-map-check skips the check:
+    no broken-map warning, no verdict in the report."""
     path, _ = outlier_grid(tmp_path, 0.1)
     report = tmp_path / "r.json"
-    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--robust", "gnc", "--report", report, "-q")
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", *option, "--report", report, "-q")
     assert run.returncode == 0, run.stderr
     assert "broken" not in run.stderr and "suspicious_edges" not in json.loads(report.read_text())
 
