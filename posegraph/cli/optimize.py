@@ -363,9 +363,10 @@ def _cost_lines(args, params, result, chi2: dict) -> list[str]:
 
 
 def _stats_table(chi2: dict) -> list[str]:
-    """``--stats``: count, χ² and χ²/edge per edge kind at the result (g2o's ``-stats``, by kind)."""
+    """``--stats``: count, χ² and χ²/edge per edge kind (priors and landmark measurements too) at the
+    result (g2o's ``-stats``, by kind)."""
     rows = [("odometry", chi2["by_kind"]["odometry"]), ("loop closure", chi2["by_kind"]["loop_closure"])]
-    rows += [("prior", chi2["by_kind"]["prior"])] if "prior" in chi2["by_kind"] else []
+    rows += [(kind, chi2["by_kind"][kind]) for kind in ("prior", "landmark") if kind in chi2["by_kind"]]
     count = sum(r["count"] for _, r in rows)
     rows.append(("all", {"count": count, "chi2": chi2["chi2"],
                          "chi2_per_edge": chi2["chi2"] / count if count else float("nan")}))

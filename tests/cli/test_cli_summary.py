@@ -214,8 +214,12 @@ def test_landmark_dof_counts_rows_per_family_and_points_as_points(tmp_path):
     graph, _, _ = landmark_graph(SE2, 30, 12, ("position", "bearing"), noise=0.02, seed=11, per_landmark=4)
     path = tmp_path / "landmarks.g2o"
     write_g2o(path, graph)
-    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--report", tmp_path / "r.json")
+    run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--report", tmp_path / "r.json", "--stats")
     assert run.returncode == 0, run.stderr
+    landmark = re.search(r"^landmark\s+(\d+)\s+\S+", run.stdout, re.MULTILINE)  # --stats: a row of their own
+    everything = re.search(r"^all\s+(\d+)\s+(\S+)", run.stdout, re.MULTILINE)
+    assert landmark and int(landmark.group(1)) == 96 and int(everything.group(1)) == 29 + 96
+    assert float(everything.group(2)) == pytest.approx(float(printed(run.stdout, "final χ²")), rel=1e-5)
     assert ("(dof = 3·29 edges + 2·48 position measurements + 1·48 bearing measurements − 3·29 free poses "
             "− 2·12 free points = 120;") in printed_line(run.stdout, "χ²/dof")
     assert json.loads((tmp_path / "r.json").read_text())["dof"] == 120
