@@ -144,7 +144,8 @@ def _refit_chi2(graph, poses, chi2, loops, params) -> np.ndarray:
     from posegraph.analysis.report import edge_chi2
     from posegraph.solve import SolverParams, analyze, optimize
 
-    base = SolverParams() if params is None else replace(params, callback=None)
+    # the refits are the check's own business: no progress lines, no recorded estimates
+    base = SolverParams() if params is None else replace(params, callback=None, estimate_callback=None)
     analysis = analyze(graph, base)  # the symbolic work, once for every round
     for _ in range(ROUNDS):
         level = float(np.median(chi2[loops]))

@@ -96,7 +96,6 @@ def _run(args, recording) -> int:
 
     status = Status(args.quiet)
     import_solver_modules()  # first: it sets one BLAS thread before numpy loads
-    from posegraph.analysis.report import chi2_summary
     from posegraph.solve import optimize
 
     graph, held, start, file_cost, seconds = _start(args, status)
@@ -132,11 +131,7 @@ def _run(args, recording) -> int:
     prior_weights = final_prior_weights(held, args, result, robust)
     landmark_weights = final_landmark_weights(held, args, result, robust)
     inliers = output_graph(held, weights, drop=True, prior_weights=prior_weights, landmark_weights=landmark_weights)  # robust: χ², covariances of those kept
-    # the solver's last residuals are those of `inliers` unless the robust path dropped edges
-    chi2 = chi2_summary(inliers, result.poses, result.final_residuals if inliers is held and robust is None else None)
-    if weights is not None:  # robust: χ² over every measurement too, at the same poses
-        chi2["every"] = chi2_summary(held, result.poses)
-    verdict = _judge_edges(held, result, params) if args.robust == "none" and not args.no_map_check else None
+    chi2, verdict = _chi2_and_verdict(args, held, inliers, result, params, robust_run=weights is not None)
     covariances = _covariances(args, status, inliers, result, seconds) if args.covariances else None
     known = known_inlier_facts(held, robust)
     record_optimize_result(recorder, held, result, weights=weights, covariances=covariances, chi2=chi2, robust=robust,
@@ -375,12 +370,22 @@ def _stats_table(chi2: dict) -> list[str]:
     return lines
 
 
-def _judge_edges(held, result, params):
-    """:func:`posegraph.analysis.suspicious.suspicious_edges` at the least-squares result (``held``: with
-    ``--fix``, landmarks at the result)."""
+def _chi2_and_verdict(args, held, inliers, result, params, robust_run: bool):
+    """``(χ² summary, broken-map verdict or None)`` at the result: χ² of ``inliers`` (``held`` unless a robust
+    mode judged outliers), with a robust mode χ² over every measurement under ``"every"``; the verdict
+    (:func:`posegraph.analysis.suspicious.suspicious_edges`) after least squares, unless ``--no-map-check``."""
+    from posegraph.analysis.report import chi2_summary
+
+    # the solver's last residuals are those of `inliers` unless the robust path dropped edges
+    residuals = result.final_residuals if inliers is held and args.robust != "gnc" else None
+    chi2 = chi2_summary(inliers, result.poses, residuals)
+    if robust_run:  # χ² over every measurement too, at the same poses
+        chi2["every"] = chi2_summary(held, result.poses)
+    if args.robust != "none" or args.no_map_check:
+        return chi2, None
     from posegraph.analysis.suspicious import suspicious_edges
 
-    return suspicious_edges(held, result.poses, params)
+    return chi2, suspicious_edges(held, result.poses, params)
 
 
 def _report_chi2_and_verdict(report: dict, graph, chi2: dict, verdict) -> None:

@@ -71,3 +71,15 @@ def test_no_verdict_without_enough_loop_closures():
     verdict = _judged(small)
     assert not verdict.judged and not verdict.broken and len(verdict.edges) == 0
     assert verdict.as_dict(small)["agreement_gain"] != verdict.as_dict(small)["agreement_gain"]  # NaN: not judged
+
+
+def test_the_refits_use_the_callers_solver_options_but_not_its_callbacks():
+    """The run's progress printer and recorder see the run's iterations only, not the check's refits."""
+    from posegraph.solve import SolverParams
+
+    calls = []
+    params = SolverParams(linear_solver="scipy", callback=lambda *a: calls.append("callback"),
+                          estimate_callback=lambda *a: calls.append("estimate"))
+    graph, _ = _grid(0.1)
+    verdict = suspicious_edges(graph, optimize(graph).poses, params)
+    assert calls == [] and verdict.broken

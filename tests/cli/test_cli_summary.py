@@ -233,7 +233,8 @@ def test_zero_dof_prints_undefined_and_reports_null(tmp_path):
     report = tmp_path / "r.json"
     run = run_cli("optimize", path, "-o", tmp_path / "out.g2o", "--report", report)
     assert run.returncode == 0, run.stderr
-    assert printed_line(run.stdout, "χ²/dof").startswith("χ²/dof:         undefined (dof 0) (dof = 3·3 edges − 3·3 free poses = 0;")
+    assert printed_line(run.stdout, "χ²/dof").startswith(
+        "χ²/dof:         undefined (dof 0) (dof = 3·3 edges − 3·3 free poses = 0;")
     data = json.loads(report.read_text(), parse_constant=lambda name: pytest.fail(f"non-strict JSON {name}"))
     assert data["dof"] == 0 and data["chi2_per_dof"] is None
 
