@@ -83,3 +83,20 @@ def test_the_refits_use_the_callers_solver_options_but_not_its_callbacks():
     graph, _ = _grid(0.1)
     verdict = suspicious_edges(graph, optimize(graph).poses, params)
     assert calls == [] and verdict.broken
+
+
+def test_no_refit_when_no_loop_closure_stands_out(monkeypatch):
+    """A clean grid has no loop closure above SCREEN × the level: judged without a solve (gain 1); one
+    wrong loop closure makes the check refit."""
+    import posegraph.solve
+
+    graph, _ = _grid(0.0)
+    poses = optimize(graph).poses
+    calls = []
+    real = posegraph.solve.optimize
+    monkeypatch.setattr(posegraph.solve, "optimize", lambda *a, **k: calls.append(1) or real(*a, **k))
+    verdict = suspicious_edges(graph, poses)
+    assert verdict.judged and not verdict.broken and verdict.gain == 1.0 and calls == []
+    corrupted, _ = inject_outliers(graph, fraction=0.05, seed=1)
+    suspicious_edges(corrupted, real(corrupted).poses)
+    assert len(calls) > 0
