@@ -43,7 +43,6 @@ def add_arguments(p) -> None:
     p.add_argument("--max-rank", type=positive_int, default=10, metavar="R",
                    help="highest rank of the Riemannian staircase (default 10, SE-Sync's rmax)")
     repair_option(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
 
 

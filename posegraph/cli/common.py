@@ -74,6 +74,16 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message):
         raise UsageError(f"{message} (see '{self.prog} --help')")
 
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, but arguments left over after a subcommand point at that subcommand's help:
+        argparse reports them from the top-level parser, whose help lists no subcommand's options."""
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(namespace, "command", None)
+            where = f"{self.prog} {command}" if command else self.prog
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)} (see '{where} --help')")
+        return namespace
+
 
 def error(message: str) -> None:
     print(f"{PROG}: error: {message}", file=sys.stderr, flush=True)
@@ -338,6 +348,16 @@ def require_matplotlib() -> None:
 
 # --------------------------------------------------------------------------------------------
 # options
+
+
+QUIET_HELP = ("no progress lines and no summary: print only warnings, errors and the output the command is for "
+              "(the tables of info, eval, compare and verify-jacobians; the results written with -o, --report)")
+
+
+def quiet_option(p) -> None:
+    """``-q``/``--quiet``, which every subcommand takes (:func:`posegraph.cli.parser.build_parser` adds it
+    to those whose own options do not; ``optimize`` and ``batch`` have it among the per-file options)."""
+    p.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
 
 
 def repair_option(p: argparse.ArgumentParser) -> None:

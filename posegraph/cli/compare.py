@@ -42,7 +42,6 @@ def add_arguments(p) -> None:
     p.add_argument("--cost-tolerance", type=non_negative_float, default=COMPARE_COST_TOLERANCE, metavar="TOL",
                    help="largest relative difference of the final costs counted as agreement")
     p.add_argument("--report", metavar="REPORT.json", help="write the comparison as JSON")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
 def run(args) -> int:

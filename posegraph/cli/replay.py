@@ -49,7 +49,6 @@ def add_arguments(p) -> None:
     p.add_argument("--robust", choices=ROBUST_LOSSES, default="none", help="robust loss on every edge (no gnc here)")
     p.add_argument("--robust-scale", type=float, default=None, metavar="C", help="the loss's scale")
     repair_option(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     rerun_options(p)
 
 
