@@ -47,6 +47,11 @@ def interrupted_message(exc: BaseException) -> str:
 STDIO = "-"
 """A file argument naming standard input (where a graph is read) or standard output (where one is written)."""
 
+CLOSED_STREAMS: set = set()
+"""The standard streams (``"stdin"``, ``"stdout"``, ``"stderr"``) that were closed when the command
+started (:func:`posegraph.cli.startup.reopen_closed_streams`): what goes there is discarded, and ``-``
+cannot name them."""
+
 LARGE_GRAPH_POSES = 10_000
 """Graphs above this many poses get a line as each slow phase (reading, initialising) starts."""
 LARGE_FILE_BYTES = 4_000_000
@@ -205,6 +210,8 @@ def check_output(
     from posegraph.errors import OutputError
 
     if path == STDIO:
+        if stdout and "stdout" in CLOSED_STREAMS:
+            raise UsageError(f"the {what} cannot go to standard output (-): it is closed; give a file name")
         if stdout:
             return
         raise UsageError(f"the {what} cannot go to standard output (-): give a file name")
@@ -258,9 +265,17 @@ def check_figure(path: str, inputs=()) -> None:
 
 
 def check_inputs(paths) -> None:
-    """A :class:`UsageError` if standard input (``-``) is named more than once."""
+    """A :class:`UsageError` if standard input (``-``) is named more than once, or is closed."""
     if sum(path == STDIO for path in paths) > 1:
         raise UsageError("standard input (-) can be read only once")
+    for path in paths:
+        check_stdin(path)
+
+
+def check_stdin(path: str) -> None:
+    """A :class:`UsageError` if ``path`` is ``-`` and standard input was closed (an empty graph would follow)."""
+    if path == STDIO and "stdin" in CLOSED_STREAMS:
+        raise UsageError("standard input (-) is closed: give a file name")
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -298,6 +313,7 @@ def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_
     (``options``: further reader options, :func:`reader_options`)."""
     from posegraph.io.g2o import read_g2o
 
+    check_stdin(path)
     size = os.path.getsize(path) if path != STDIO and os.path.isfile(path) else 0
     if size > LARGE_FILE_BYTES:
         status(f"reading {path} ({size / 1e6:.1f} MB) …")
