@@ -181,10 +181,12 @@ def _start(args, status: Status):
     The cost at the file's poses is printed and reported; with ``--quiet`` and no report nothing
     shows it, and it is NaN.
     """
+    from posegraph.cli.solving import check_linear_solver
     from posegraph.solve.residuals import cost
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
                                      **reader_options(args))
+    check_linear_solver(graph, args.linear_solver, args.input)
     held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
     if graph.num_vertices > LARGE_GRAPH_POSES:

@@ -104,9 +104,11 @@ def _run(args, recording) -> int:
 
     status = Status(args.quiet)
     import_solver_modules()
+    from posegraph.cli.solving import check_linear_solver
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    check_linear_solver(graph, args.linear_solver, args.input)
     opt, params = _optimizer(args, graph)
     recorder = replay_recorder(recording, graph, args.batch_size)
     with Timer() as t:
