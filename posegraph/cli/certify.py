@@ -82,7 +82,8 @@ def run(args) -> int:
     from posegraph.certification.certificate import certify
     from posegraph.certification.verify import DEFAULT_TOLERANCE
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     uses_file_poses=False)  # the candidate starts from the chordal relaxation
     check_max_rank(args.max_rank, graph)
     with Timer() as t:
         certificate = certify(graph, eta=DEFAULT_TOLERANCE if args.eta is None else args.eta, max_rank=args.max_rank)

@@ -308,16 +308,24 @@ def _is_node(path: str) -> bool:
 
 
 def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False,
-               **options):
+               uses_file_poses: bool = True, **options):
     """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``
-    (``options``: further reader options, :func:`reader_options`)."""
+    (``options``: further reader options, :func:`reader_options`). ``uses_file_poses=False``: the
+    command starts from poses of its own (``--init chordal``, certify's candidate), so the warning that
+    a file without vertex lines has its vertices at the identity (:class:`~posegraph.errors.MissingPosesWarning`)
+    would be noise, and is not shown."""
+    import warnings
+
+    from posegraph.errors import MissingPosesWarning
     from posegraph.io.g2o import read_g2o
 
     check_stdin(path)
     size = os.path.getsize(path) if path != STDIO and os.path.isfile(path) else 0
     if size > LARGE_FILE_BYTES:
         status(f"reading {path} ({size / 1e6:.1f} MB) …")
-    with Ticker(status, f"reading {path}"), Timer() as t:
+    with Ticker(status, f"reading {path}"), Timer() as t, warnings.catch_warnings():
+        if not uses_file_poses:
+            warnings.simplefilter("ignore", MissingPosesWarning)
         graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information, **options)
     status(f"read {display_name(path)}: {graph_size(graph)} ({t.seconds:.3f} s)")
     from posegraph.cli import startup

@@ -71,7 +71,7 @@ def _run_ours(args, status: Status) -> dict:
     from posegraph.solve import optimize
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
-                                     **reader_options(args))
+                                     uses_file_poses=args.init == "file", **reader_options(args))
     check_linear_solver(graph, args.linear_solver, args.input)
     if graph.group.residual_log is not None:  # g2o's Sim(3) error: compare on gtsam's, the exact log's
         from dataclasses import replace

@@ -185,7 +185,7 @@ def _start(args, status: Status):
     from posegraph.solve.residuals import cost
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
-                                     **reader_options(args))
+                                     uses_file_poses=args.init == "file", **reader_options(args))
     check_linear_solver(graph, args.linear_solver, args.input)
     held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")

@@ -107,7 +107,8 @@ def _run(args, recording) -> int:
     from posegraph.cli.solving import check_linear_solver
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     uses_file_poses=False)  # each vertex is placed by its first edge
     check_linear_solver(graph, args.linear_solver, args.input)
     opt, params = _optimizer(args, graph)
     recorder = replay_recorder(recording, graph, args.batch_size)
