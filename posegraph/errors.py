@@ -70,3 +70,8 @@ class PosegraphWarning(UserWarning):
 
 class InputWarning(PosegraphWarning):
     """Something in the input was repaired or skipped (normalised quaternion, unknown tags, several components)."""
+
+
+class MissingPosesWarning(InputWarning):
+    """The file has edges but no vertex lines: its vertices were created at the identity pose, which
+    matters only to what starts from the file's poses (the command line says it for ``--init file`` only)."""

@@ -40,11 +40,37 @@ def add_arguments(p) -> None:
     p.add_argument("--eta", type=positive_float, default=None, metavar="ETA",
                    help="relative tolerance: certified when F(x) - (proven lower bound) <= ETA F(x) "
                         "(default 1e-6)")
-    p.add_argument("--max-rank", type=positive_int, default=10, metavar="R",
-                   help="highest rank of the Riemannian staircase (default 10, SE-Sync's rmax)")
+    p.add_argument("--max-rank", type=max_rank, default=10, metavar="R",
+                   help="highest rank of the Riemannian staircase (default 10, SE-Sync's rmax); at least the "
+                        "rotations' dimension d (2 in 2D, 3 in 3D), where it starts: R = d tests the rank-d "
+                        "candidate alone")
     repair_option(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+
+
+LOWEST_RANK = 2
+"""The rotations' dimension d of a 2D graph: no relaxation has a lower rank (a 3D graph's is 3)."""
+
+
+def max_rank(text: str) -> int:
+    """argparse type of ``--max-rank``: an integer >= :data:`LOWEST_RANK` (the graph's own d is checked
+    once it is read, :func:`check_max_rank`)."""
+    import argparse
+
+    value = positive_int(text)
+    if value < LOWEST_RANK:
+        raise argparse.ArgumentTypeError(f"must be >= {LOWEST_RANK}, the rotations' dimension d of a 2D graph "
+                                         f"(3 for a 3D one), where the staircase starts: {text}")
+    return value
+
+
+def check_max_rank(rank: int, graph) -> None:
+    """A :class:`UsageError` when ``--max-rank`` is below the graph's rotation dimension d: the staircase
+    starts at rank d (the candidate's rotations), so a lower cap would be ignored."""
+    d = graph.group.space_dim
+    if rank < d:
+        raise UsageError(f"--max-rank {rank} is below {d}, the rotations' dimension d of this {d}D graph, where "
+                         f"the staircase starts: give R >= {d} (R = {d} tests the rank-{d} candidate alone)")
 
 
 def run(args) -> int:
@@ -56,7 +82,9 @@ def run(args) -> int:
     from posegraph.certification.certificate import certify
     from posegraph.certification.verify import DEFAULT_TOLERANCE
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     uses_file_poses=False)  # the candidate starts from the chordal relaxation
+    check_max_rank(args.max_rank, graph)
     with Timer() as t:
         certificate = certify(graph, eta=DEFAULT_TOLERANCE if args.eta is None else args.eta, max_rank=args.max_rank)
     status(f"certify: {certificate.status} ({t.seconds:.3f} s)")

@@ -47,6 +47,11 @@ def interrupted_message(exc: BaseException) -> str:
 STDIO = "-"
 """A file argument naming standard input (where a graph is read) or standard output (where one is written)."""
 
+CLOSED_STREAMS: set = set()
+"""The standard streams (``"stdin"``, ``"stdout"``, ``"stderr"``) that were closed when the command
+started (:func:`posegraph.cli.startup.reopen_closed_streams`): what goes there is discarded, and ``-``
+cannot name them."""
+
 LARGE_GRAPH_POSES = 10_000
 """Graphs above this many poses get a line as each slow phase (reading, initialising) starts."""
 LARGE_FILE_BYTES = 4_000_000
@@ -73,6 +78,16 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message):
         raise UsageError(f"{message} (see '{self.prog} --help')")
+
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, but arguments left over after a subcommand point at that subcommand's help:
+        argparse reports them from the top-level parser, whose help lists no subcommand's options."""
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = getattr(namespace, "command", None)
+            where = f"{self.prog} {command}" if command else self.prog
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)} (see '{where} --help')")
+        return namespace
 
 
 def error(message: str) -> None:
@@ -195,6 +210,8 @@ def check_output(
     from posegraph.errors import OutputError
 
     if path == STDIO:
+        if stdout and "stdout" in CLOSED_STREAMS:
+            raise UsageError(f"the {what} cannot go to standard output (-): it is closed; give a file name")
         if stdout:
             return
         raise UsageError(f"the {what} cannot go to standard output (-): give a file name")
@@ -248,9 +265,17 @@ def check_figure(path: str, inputs=()) -> None:
 
 
 def check_inputs(paths) -> None:
-    """A :class:`UsageError` if standard input (``-``) is named more than once."""
+    """A :class:`UsageError` if standard input (``-``) is named more than once, or is closed."""
     if sum(path == STDIO for path in paths) > 1:
         raise UsageError("standard input (-) can be read only once")
+    for path in paths:
+        check_stdin(path)
+
+
+def check_stdin(path: str) -> None:
+    """A :class:`UsageError` if ``path`` is ``-`` and standard input was closed (an empty graph would follow)."""
+    if path == STDIO and "stdin" in CLOSED_STREAMS:
+        raise UsageError("standard input (-) is closed: give a file name")
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -283,15 +308,24 @@ def _is_node(path: str) -> bool:
 
 
 def read_graph(path: str, status: Status, *, require_edges: bool = True, repair_information: bool = False,
-               **options):
+               uses_file_poses: bool = True, **options):
     """``(graph, seconds)``: :func:`posegraph.io.g2o.read_g2o` with a phase line on ``status``
-    (``options``: further reader options, :func:`reader_options`)."""
+    (``options``: further reader options, :func:`reader_options`). ``uses_file_poses=False``: the
+    command starts from poses of its own (``--init chordal``, certify's candidate), so the warning that
+    a file without vertex lines has its vertices at the identity (:class:`~posegraph.errors.MissingPosesWarning`)
+    would be noise, and is not shown."""
+    import warnings
+
+    from posegraph.errors import MissingPosesWarning
     from posegraph.io.g2o import read_g2o
 
+    check_stdin(path)
     size = os.path.getsize(path) if path != STDIO and os.path.isfile(path) else 0
     if size > LARGE_FILE_BYTES:
         status(f"reading {path} ({size / 1e6:.1f} MB) …")
-    with Ticker(status, f"reading {path}"), Timer() as t:
+    with Ticker(status, f"reading {path}"), Timer() as t, warnings.catch_warnings():
+        if not uses_file_poses:
+            warnings.simplefilter("ignore", MissingPosesWarning)
         graph = read_g2o(path, require_edges=require_edges, repair_information=repair_information, **options)
     status(f"read {display_name(path)}: {graph_size(graph)} ({t.seconds:.3f} s)")
     from posegraph.cli import startup
@@ -338,6 +372,16 @@ def require_matplotlib() -> None:
 
 # --------------------------------------------------------------------------------------------
 # options
+
+
+QUIET_HELP = ("no progress lines and no summary: print only warnings, errors and the output the command is for "
+              "(the tables of info, eval, compare and verify-jacobians; the results written with -o, --report)")
+
+
+def quiet_option(p) -> None:
+    """``-q``/``--quiet``, which every subcommand takes (:func:`posegraph.cli.parser.build_parser` adds it
+    to those whose own options do not; ``optimize`` and ``batch`` have it among the per-file options)."""
+    p.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
 
 
 def repair_option(p: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ from posegraph.cli.common import (
     EXIT_NOT_CONVERGED, EXIT_OK, STDIO, Status, Timer, check_output, display_name, fmt_cost, non_negative_float,
     read_graph, repair_option,
 )
-from posegraph.cli.solving import initial_poses, iteration_printer, solver_options, solver_params
+from posegraph.cli.solving import check_linear_solver, initial_poses, iteration_printer, solver_options, solver_params
 
 COMPARE_COST_TOLERANCE = 1e-6
 """Default for ``compare --cost-tolerance``: relative difference of the final costs, against
@@ -42,7 +42,6 @@ def add_arguments(p) -> None:
     p.add_argument("--cost-tolerance", type=non_negative_float, default=COMPARE_COST_TOLERANCE, metavar="TOL",
                    help="largest relative difference of the final costs counted as agreement")
     p.add_argument("--report", metavar="REPORT.json", help="write the comparison as JSON")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
 def run(args) -> int:
@@ -72,7 +71,8 @@ def _run_ours(args, status: Status) -> dict:
     from posegraph.solve import optimize
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
-                                     **reader_options(args))
+                                     uses_file_poses=args.init == "file", **reader_options(args))
+    check_linear_solver(graph, args.linear_solver, args.input)
     if graph.group.residual_log is not None:  # g2o's Sim(3) error: compare on gtsam's, the exact log's
         from dataclasses import replace
 

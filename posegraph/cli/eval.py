@@ -44,18 +44,71 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def read_poses(path: str, repair_information: bool):
-    """``(keys (n,), poses)`` of a g2o, TUM or KITTI file: vertex ids, timestamps or line numbers."""
+def read_poses(path: str, repair_information: bool, with_format: bool = False):
+    """``(keys (n,), poses)`` of a g2o, TUM or KITTI file: vertex ids, timestamps or line numbers;
+    ``with_format``: ``(keys, poses, "g2o" | "tum" | "kitti")``."""
     from posegraph.io import trajectory
 
     kind = "g2o" if path == "-" else trajectory.file_format(path)
     if kind == "tum":
-        return trajectory.read_tum(path)
-    if kind == "kitti":
-        return trajectory.read_kitti(path)
-    from posegraph.analysis.evaluate import read_trajectory
+        keys, poses = trajectory.read_tum(path)
+    elif kind == "kitti":
+        keys, poses = trajectory.read_kitti(path)
+    else:
+        from posegraph.analysis.evaluate import read_trajectory
 
-    return read_trajectory(path, repair_information=repair_information)
+        keys, poses = read_trajectory(path, repair_information=repair_information)
+    return (keys, poses, kind) if with_format else (keys, poses)
+
+
+PLANE_TOLERANCE = 1e-6
+"""A 3D trajectory compared with a 2D one must lie in the plane z = 0 (rotations about z) to this much:
+|z| relative to the trajectory's extent (at least 1), and the out-of-plane entries of its rotations."""
+
+
+def _off_plane(poses) -> tuple[float, float]:
+    """``(largest |z| relative to max(1, extent), largest out-of-plane rotation entry)`` of ``(n, 4, 4)`` poses."""
+    import numpy as np
+
+    if not len(poses):
+        return 0.0, 0.0
+    positions = poses[:, :3, 3]
+    extent = max(1.0, float(np.ptp(positions, axis=0).max()))
+    tilt = np.concatenate([poses[:, 2, :2], poses[:, :2, 2]], axis=1)
+    return float(np.abs(positions[:, 2]).max()) / extent, float(np.abs(tilt).max())
+
+
+def _kind(path: str, poses, file_format: str) -> str:
+    """``"a 2D g2o file (SE(2) poses)"``, ``"a 3D TUM file"`` … for messages."""
+    from posegraph.analysis.evaluate import is_similarity_trajectory
+
+    if file_format != "g2o":
+        return f"a 3D {file_format.upper()} file"
+    if poses.shape[-1] == 3:
+        return "a 2D g2o file (SE(2) poses)"
+    return f"a 3D g2o file ({'Sim(3)' if is_similarity_trajectory(poses) else 'SE(3)'} poses)"
+
+
+def check_dimensions(estimate: tuple, reference: tuple) -> None:
+    """A :class:`UsageError` when one trajectory is 2D and the other 3D off the plane z = 0.
+
+    ``estimate``, ``reference``: ``(path, poses, file format)``. A 2D trajectory is compared in its
+    embedding at z = 0 (:func:`posegraph.analysis.evaluate.evaluate`), which is meaningful only against
+    a 3D one in that plane (a 2D graph exported to TUM or KITTI); anything else is two different
+    kinds of trajectory, and the figures would measure the third dimension, not an error.
+    """
+    (path_a, poses_a, format_a), (path_b, poses_b, format_b) = estimate, reference
+    if poses_a.shape[-1] == poses_b.shape[-1]:
+        return
+    flat = poses_b if poses_a.shape[-1] == 3 else poses_a
+    height, tilt = _off_plane(flat)
+    if height <= PLANE_TOLERANCE and tilt <= PLANE_TOLERANCE:
+        return
+    solid = path_b if poses_a.shape[-1] == 3 else path_a
+    raise UsageError(
+        f"cannot compare a 2D with a 3D trajectory: {display_name(path_a)} is {_kind(path_a, poses_a, format_a)}, "
+        f"{display_name(path_b)} {_kind(path_b, poses_b, format_b)}, and {display_name(solid)} leaves the plane "
+        "z = 0; give two 2D or two 3D trajectories ('posegraph export --tum' writes a 2D graph's poses in 3D)")
 
 
 def run(args) -> int:
@@ -69,8 +122,10 @@ def run(args) -> int:
         estimate_ids, estimate_poses, reference_ids, reference_poses = _against_priors(args)
         args.no_align = True  # the priors fix the frame
     else:
-        estimate_stamps, estimate_poses = read_poses(args.estimate, args.repair_information)
-        reference_stamps, reference_poses = read_poses(args.reference, args.repair_information)
+        estimate_stamps, estimate_poses, estimate_format = read_poses(args.estimate, args.repair_information, True)
+        reference_stamps, reference_poses, reference_format = read_poses(args.reference, args.repair_information, True)
+        check_dimensions((args.estimate, estimate_poses, estimate_format),
+                         (args.reference, reference_poses, reference_format))
         estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
     result = evaluate(estimate_ids, estimate_poses, reference_ids, reference_poses,
                       align=not args.no_align, source=args.estimate)

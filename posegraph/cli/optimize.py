@@ -10,7 +10,7 @@ from posegraph.cli.common import (
     reader_options,
     EXIT_NOT_CONVERGED, EXIT_OK, LARGE_GRAPH_POSES, STDIO, Status, Ticker, Timer, UsageError,
     check_distinct, check_figure, check_output, display_name, fmt_cost, graph_size, non_negative_int, read_graph, repair_option,
-    interrupted_status, warn,
+    interrupted_status, quiet_option, warn,
 )
 from posegraph.cli.robust import (
     check_robust_options, final_landmark_weights, final_prior_weights, final_weights, known_inlier_facts, output_graph, robust_options, robust_report,
@@ -78,7 +78,7 @@ def file_options(p) -> None:
     p.add_argument("--no-map-check", action="store_true",
                    help="skip the broken-map check after a least-squares solve (edges judged against each other by "
                         "short robust refits, about one to three times the solve's time; docs/robust.md)")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
+    quiet_option(p)
     p.add_argument("--certify", action="store_true",
                    help="also certify SE-Sync's isotropic problem (posegraph certify), polish its estimate with LM on "
                         "the file's cost, write that, and report whether it ends where LM from the chordal start does; "
@@ -181,10 +181,12 @@ def _start(args, status: Status):
     The cost at the file's poses is printed and reported; with ``--quiet`` and no report nothing
     shows it, and it is NaN.
     """
+    from posegraph.cli.solving import check_linear_solver
     from posegraph.solve.residuals import cost
 
     graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
-                                     **reader_options(args))
+                                     uses_file_poses=args.init == "file", **reader_options(args))
+    check_linear_solver(graph, args.linear_solver, args.input)
     held = _with_fixed(graph, args.fix, args.input)
     file_cost = float(cost(graph)) if (not args.quiet or args.report) else float("nan")
     if graph.num_vertices > LARGE_GRAPH_POSES:

@@ -12,7 +12,7 @@ import importlib
 import os
 import sys
 
-from posegraph.cli.common import PROG, ArgumentParser
+from posegraph.cli.common import PROG, ArgumentParser, quiet_option
 
 COMMANDS = ("optimize", "batch", "compare", "verify-jacobians", "info", "eval", "plot", "export", "certify", "replay")
 """The subcommands, in the order of ``--help``; ``posegraph.cli.<name with _ for ->`` implements each."""
@@ -65,6 +65,8 @@ def _add_command(sub, module) -> None:
         formatter_class=HelpFormatter,
     )
     module.add_arguments(p)
+    if "--quiet" not in p._option_string_actions:  # optimize and batch have it among their per-file options
+        quiet_option(p)
     _debug_option(p)
     p.set_defaults(func=module.run)
 

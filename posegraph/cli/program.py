@@ -24,8 +24,10 @@ def main(argv=None) -> int:
     which re-raises it with its traceback.
     """
     from posegraph.io.atomic import forget_committed_outputs
-    from posegraph.cli.startup import stop_signals_interrupt
+    from posegraph.cli.common import CLOSED_STREAMS
+    from posegraph.cli.startup import reopen_closed_streams, stop_signals_interrupt
 
+    CLOSED_STREAMS.update(reopen_closed_streams())  # first: a message printed before would fail
     argv = sys.argv[1:] if argv is None else list(argv)
     forget_committed_outputs()  # what this run delivers, for the message if it is interrupted
     try:

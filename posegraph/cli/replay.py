@@ -49,7 +49,6 @@ def add_arguments(p) -> None:
     p.add_argument("--robust", choices=ROBUST_LOSSES, default="none", help="robust loss on every edge (no gnc here)")
     p.add_argument("--robust-scale", type=float, default=None, metavar="C", help="the loss's scale")
     repair_option(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but warnings and errors")
     rerun_options(p)
 
 
@@ -105,9 +104,12 @@ def _run(args, recording) -> int:
 
     status = Status(args.quiet)
     import_solver_modules()
+    from posegraph.cli.solving import check_linear_solver
     from posegraph.incremental.replay import cost_excess, replay, time_statistics
 
-    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information)
+    graph, seconds_read = read_graph(args.input, status, repair_information=args.repair_information,
+                                     uses_file_poses=False)  # each vertex is placed by its first edge
+    check_linear_solver(graph, args.linear_solver, args.input)
     opt, params = _optimizer(args, graph)
     recorder = replay_recorder(recording, graph, args.batch_size)
     with Timer() as t:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from posegraph.cli.common import Status, non_negative_float, non_negative_int
+from posegraph.cli.common import Status, display_name, non_negative_float, non_negative_int
 
 
 def solver_options(p: argparse.ArgumentParser) -> None:
@@ -42,6 +42,16 @@ def solver_params(args, callback=None):
     if args.absolute_tolerance is not None:
         options["absolute_tolerance"] = args.absolute_tolerance
     return SolverParams(**options)
+
+
+def check_linear_solver(graph, linear_solver: str, path: str) -> None:
+    """:class:`~posegraph.errors.GraphError` naming ``path`` when ``--linear-solver pcg`` meets a graph with
+    landmarks, which its multigrid cannot solve: said as soon as the file is read, before any start is made."""
+    from posegraph.errors import GraphError
+    from posegraph.solve.linear import PCG_POSES_ONLY
+
+    if linear_solver == "pcg" and graph.landmarks is not None and graph.landmarks.count:
+        raise GraphError(PCG_POSES_ONLY, display_name(path))
 
 
 def initial_poses(graph, args):

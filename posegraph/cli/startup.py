@@ -215,3 +215,41 @@ def raise_interrupted(signum: int, frame) -> None:
     from posegraph.errors import Interrupted
 
     raise Interrupted(signum)
+
+
+STANDARD_STREAMS = ("stdin", "stdout", "stderr")
+"""The standard streams, in the order of their file descriptors 0, 1, 2."""
+
+
+def reopen_closed_streams() -> tuple[str, ...]:
+    """Give each closed standard stream the null device; the names of those that were closed.
+
+    A daemon or a cron job may start the command with descriptor 0, 1 or 2 closed (``<&-``,
+    ``>&-``, ``2>&-``); Python then sets ``sys.stdin``/``sys.stdout``/``sys.stderr`` to None, and
+    every message or progress line would fail. Each closed descriptor is opened on ``os.devnull``
+    first — the first files the command opens would otherwise take its number, and whatever a
+    library writes to "standard error" would land in them — and each stream that is None becomes a
+    text file on the null device of its own (never on descriptors 0–2: one may have been taken by a
+    file before this runs), so that what goes there is discarded and the work goes on.
+    """
+    closed = []
+    for fd, name in enumerate(STANDARD_STREAMS):
+        if _descriptor_open(fd) and getattr(sys, name) is not None:
+            continue
+        if not _descriptor_open(fd):
+            null = os.open(os.devnull, os.O_RDONLY if fd == 0 else os.O_WRONLY)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "r" if fd == 0 else "w", encoding="utf-8"))
+        closed.append(name)
+    return tuple(closed)
+
+
+def _descriptor_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True

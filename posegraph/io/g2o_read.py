@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, excerpt
+from posegraph.errors import G2oFormatError, GraphError, InputError, InputWarning, MissingPosesWarning, excerpt
 from posegraph.model.graph import EdgeSource, PoseGraph
 from posegraph.io.g2o_checks import (
     check_finite, check_information, check_negative_ids, components_note, quaternion_note, raise_first,
@@ -88,7 +88,7 @@ def read_g2o(
         True (default) reads a graph to optimise: edges are required, and a
         file with edges but no vertex lines (gtsam's ``sphere2500.txt``) gets
         the vertices its edges name, at the identity pose, with a warning
-        (the initialisers provide a start). False reads a trajectory: vertex
+        (:class:`~posegraph.errors.MissingPosesWarning`; the initialisers provide a start). False reads a trajectory: vertex
         lines are required (a file without any is a :class:`GraphError`:
         there are no poses to read) and a file without edges gives ``m = 0``.
     repair_information:
@@ -321,7 +321,7 @@ def _values(
 def _vertices_or_refusal(
     vertices: _Poses, edges: _Measurements, unread: tuple, require_edges: bool, table: dict[str, Record], path: str,
     landmark_pose_ids: np.ndarray,
-) -> tuple[_Poses, list[str]]:  # fmt: skip
+) -> tuple[_Poses, list]:  # fmt: skip
     """Stage 3: a :class:`GraphError` for an empty graph; the vertices (created for an edge-only file).
 
     ``unread`` = ``(skipped, first_line)``: the tags not read with their counts and every tag's first
@@ -464,8 +464,9 @@ def rotations_from_roll_pitch_yaw(angles: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def _vertices_named_by_edges(edges: _Measurements, path: str, extra: np.ndarray) -> tuple[_Poses, str]:
-    """Vertices for a file with edges but no vertex lines: the ids its edges name, sorted, at the identity.
+def _vertices_named_by_edges(edges: _Measurements, path: str, extra: np.ndarray) -> tuple[_Poses, MissingPosesWarning]:
+    """Vertices for a file with edges but no vertex lines: the ids its edges name, sorted, at the identity,
+    and the warning that says so.
 
     This is how gtsam's ``sphere2500.txt`` comes (``EDGE3`` lines only; ``gtsam.readG2o`` returns
     no initial values for it), and iSAM's files (``ODOMETRY``, ``LANDMARK``); ``extra`` are the pose
@@ -487,12 +488,8 @@ def _vertices_named_by_edges(edges: _Measurements, path: str, extra: np.ndarray)
         translations=np.zeros((n, r)),
         numbers=np.zeros(n, dtype=np.int64),  # no line: duplicates are impossible
     )
-    note = (
-        f"{path}: the file has no vertex lines, so the initial values are missing: created the {n} vertices "
-        "its edges name at the identity pose; start from an initialiser (--init chordal, the default, or "
-        "--init odometry; posegraph.init.initialize), not from the file (--init file); replay places each "
-        "vertex by its first edge"
-    )
+    note = MissingPosesWarning(f"{path}: no vertex lines, so no initial values: created the {n} vertices its edges "
+                               "name at the identity pose")
     return vertices, note
 
 

@@ -370,6 +370,11 @@ class MultigridSolver(LinearSolver):
         raise NotImplementedError("linear solver 'pcg' computes no factor; covariances need 'cholmod' or 'scipy'")
 
 
+PCG_POSES_ONLY = ("linear solver 'pcg' takes pose graphs only (its multigrid knows blocks of one size); "
+                  "use 'cholmod' or 'scipy' (or 'auto') for a graph with landmarks")
+"""Why ``"pcg"`` refuses a graph with landmarks (the command line says it as soon as the file is read)."""
+
+
 def make_linear_solver(
     kind: str, pattern: HessianPattern, ordering: str = "auto", blas_threads: int | None = 1,
     tolerance: float = multigrid.DEFAULT_TOLERANCE, *, factor_needed: bool = True,
@@ -386,8 +391,7 @@ def make_linear_solver(
     if kind == "pcg" and pattern.point_size:
         from posegraph.errors import GraphError
 
-        raise GraphError("linear solver 'pcg' takes pose graphs only (its multigrid knows blocks of one size); "
-                         "use 'cholmod' or 'scipy' (or 'auto') for a graph with landmarks")
+        raise GraphError(PCG_POSES_ONLY)
     if kind == "auto" and not factor_needed and cholmod_available() and not pattern.point_size and not multigrid.factorisation_fits(
         pattern.block_indptr, pattern.block_indices, pattern.num_variables, pattern.block_size, ordering
     ):

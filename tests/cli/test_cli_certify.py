@@ -164,3 +164,19 @@ def test_shared_datasets_match_sesync_digits(shared_dataset):
         report = json.loads(run.stdout)
         assert report["certified"] and f"{report['sesync_objective']:.6g}" == expected
         assert np.isfinite(report["min_eigenvalue"]) and abs(report["suboptimality_bound"]) < 1e-6 * 2000
+
+
+@pytest.mark.parametrize("group", [SE3, SE2], ids=["SE3", "SE2"])
+def test_max_rank_below_the_rotations_dimension_is_a_usage_error(tmp_path, group):
+    """The staircase starts at rank d (2 in 2D, 3 in 3D): a lower --max-rank would be ignored. Below 2 no
+    graph is read; below a 3D graph's 3, once the file says d; R = d runs (the candidate alone)."""
+    path, _ = _graph_file(tmp_path, group, rotation_noise=0.05, translation_noise=0.05)
+    out = tmp_path / "out.g2o"
+    assert_one_error_line(run_cli("certify", path, "-q", "-o", out, "--max-rank", "1"),
+                          "argument --max-rank: must be >= 2", "(see 'posegraph certify --help')")
+    if group is SE3:
+        assert_one_error_line(run_cli("certify", path, "-q", "-o", out, "--max-rank", "2"),
+                              "--max-rank 2 is below 3, the rotations' dimension d of this 3D graph", "give R >= 3")
+    assert not out.exists()
+    run = run_cli("certify", path, "-q", "-o", out, "--max-rank", str(group.space_dim))
+    assert run.returncode == 0 and out.exists(), run.stderr

@@ -84,3 +84,33 @@ def test_eval_errors(tmp_path, shared_dataset):
     bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 nan 0 0 0 0 0 1\n")
     assert_one_error_line(run_cli("eval", bad, shared_dataset("tinyGrid3D")), f"{bad}:2:")
     assert_one_error_line(run_cli("eval", shared_dataset("tinyGrid3D")), "give a reference file GT", "--priors")
+
+
+def _planar_files(tmp_path):
+    """A 2D g2o file, and the same four poses as a 3D g2o file and as a TUM file in the plane z = 0."""
+    poses = [(0, 0, 0), (1, 0, 0.5), (2, 1, 1.0), (2, 2, 2.0)]
+    flat, solid, tum = tmp_path / "flat.g2o", tmp_path / "solid.g2o", tmp_path / "flat.tum"
+    flat.write_text("".join(f"VERTEX_SE2 {i} {x} {y} {t}\n" for i, (x, y, t) in enumerate(poses)))
+    quaternions = [Rotation.from_euler("z", t).as_quat().tolist() for _, _, t in poses]
+    tum.write_text("".join(f"{i} {x} {y} 0 " + " ".join(map(repr, q)) + "\n"
+                           for i, ((x, y, _), q) in enumerate(zip(poses, quaternions))))
+    solid.write_text("".join(f"VERTEX_SE3:QUAT {i} {x} {y} {0.1 * i} " + " ".join(map(repr, q)) + "\n"
+                             for i, ((x, y, _), q) in enumerate(zip(poses, quaternions))))
+    return flat, solid, tum
+
+
+def test_a_2d_and_a_3d_trajectory_off_the_plane_are_refused_naming_both(tmp_path):
+    flat, solid, _ = _planar_files(tmp_path)
+    for estimate, reference in ((flat, solid), (solid, flat)):
+        line = assert_one_error_line(run_cli("eval", estimate, reference), "cannot compare a 2D with a 3D trajectory",
+                                     f"{flat} is a 2D g2o file" if estimate == flat else f"{flat} a 2D g2o file",
+                                     "3D g2o file (SE(3) poses)", f"{solid} leaves the plane z = 0")
+        assert run_cli("eval", estimate, reference, "--json").returncode == 2, line
+
+
+def test_a_2d_trajectory_against_its_3d_copy_in_the_plane_has_zero_errors(tmp_path):
+    flat, _, tum = _planar_files(tmp_path)
+    run = run_cli("eval", flat, tum)
+    assert run.returncode == 0, run.stderr
+    assert max(table_row(run.stdout, "ATE translation (m)")) < 1e-9
+    assert max(table_row(run.stdout, "RPE rotation (deg)")) < 1e-6

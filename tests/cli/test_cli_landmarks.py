@@ -160,3 +160,20 @@ def test_pcg_on_a_landmark_graph_is_one_line_and_nothing_written(landmark_file, 
     run = run_cli("optimize", landmark_file, "-o", tmp_path / "out.g2o", "--linear-solver", "pcg", "-q")
     assert_one_error_line(run, "linear solver 'pcg' takes pose graphs only")
     assert not (tmp_path / "out.g2o").exists()
+
+
+@pytest.mark.parametrize("command", [["optimize", "-o", "OUT"], ["optimize", "-o", "OUT", "--init", "odometry"],
+                                     ["replay", "-o", "OUT"], ["compare"]])
+def test_pcg_on_a_landmark_graph_is_refused_as_soon_as_the_file_is_read(landmark_file, tmp_path, command):
+    """No start is made (no `initialised` line, nor compare's run line): the read line, then the refusal naming the file."""
+    if command[0] == "compare":
+        import_or_skip("gtsam")
+    out = tmp_path / "out.g2o"
+    argv = [str(out) if a == "OUT" else a for a in command]
+    run = run_cli(argv[0], landmark_file, *argv[1:], "--linear-solver", "pcg")
+    assert run.returncode == 2, run.stderr
+    read, refusal = run.stderr_lines
+    assert read.startswith(f"read {landmark_file}: 30 vertices"), run.stderr
+    assert refusal == (f"posegraph: error: {landmark_file}: linear solver 'pcg' takes pose graphs only (its multigrid "
+                       "knows blocks of one size); use 'cholmod' or 'scipy' (or 'auto') for a graph with landmarks")
+    assert list(tmp_path.iterdir()) == []

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posegraph.errors import G2oFormatError, GraphError, InputWarning
+from posegraph.errors import G2oFormatError, GraphError, InputWarning, MissingPosesWarning
 from posegraph.io.g2o import format_g2o, read_g2o, write_g2o
 from posegraph.lie import se2
 from posegraph.lie.group import SE2
@@ -96,7 +96,7 @@ def test_writer_refuses_3d_poses_for_a_2d_graph(text_file, tmp_path):
 
 
 def test_an_edge_only_file_gets_its_vertices_at_the_identity_with_a_warning(text_file):
-    with pytest.warns(InputWarning, match="no vertex lines"):
+    with pytest.warns(MissingPosesWarning, match="no vertex lines"):
         graph = read_g2o(text_file(lines(edge(3, 5), edge(5, 9), edge(9, 3))))
     assert graph.group is SE2 and graph.ids.tolist() == [3, 5, 9]
     np.testing.assert_array_equal(graph.poses, np.broadcast_to(np.eye(3), (3, 3, 3)))

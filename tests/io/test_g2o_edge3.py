@@ -106,8 +106,7 @@ def test_bundled_edge3_file_matches_gtsam(gtsam_example_file, name):
     assert len(messages) == 1, messages
     (message,) = messages
     assert message.startswith(f"{path}: ")
-    for fragment in ("initial values are missing", f"{graph.num_vertices} vertices", "identity",
-                     "--init chordal", "--init odometry"):
+    for fragment in ("no vertex lines, so no initial values", f"{graph.num_vertices} vertices", "identity"):
         assert fragment in message, (fragment, message)
 
     # The cost agrees with gtsam's at the identity start and at random poses.
