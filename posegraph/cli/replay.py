@@ -18,7 +18,7 @@ DESCRIPTION = (
     "with every edge to a vertex already in (and its priors, FIX), K new vertices per update; print a "
     "progress line, the per-update time statistics (mean, median, p99, max) and the final cost against a "
     "batch solve of the same graph. Options that apply: --robust LOSS (every solve, the incremental ones "
-    "too), --linear-solver and --method (the solves handed to the batch solver: large regions, the final "
+    "too), --linear-solver and --method (the solves handed to the batch solver: drastic or failed updates, the final "
     "comparison). Exit status 1 when the final cost exceeds the batch optimum by more than 1e-6 relative."
 )
 EXAMPLES = """
@@ -45,7 +45,7 @@ def add_arguments(p) -> None:
                    help="compare with a batch solve of the prefix every N poses (for the plot and report)")
     p.add_argument("--method", choices=("lm", "gn"), default="lm", help="method of the batch solves (default lm)")
     p.add_argument("--linear-solver", choices=("auto", "cholmod", "scipy", "pcg"), default="auto",
-                   help="sparse solver of the batch solves (the small regions use LAPACK / CHOLMOD directly)")
+                   help="sparse solver of the batch solves")
     p.add_argument("--robust", choices=ROBUST_LOSSES, default="none", help="robust loss on every edge (no gnc here)")
     p.add_argument("--robust-scale", type=float, default=None, metavar="C", help="the loss's scale")
     repair_option(p)

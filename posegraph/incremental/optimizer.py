@@ -6,14 +6,12 @@ Design (``docs/incremental.md``):
   is put where that edge says (``X_j = X_i Z``), breadth first over the batch's edges. An edge used so
   (a *tree* edge) has a zero residual and adds nothing to the gradient: a batch made only of such edges
   (odometry) leaves the estimate at the optimum of the new graph exactly, with no linear algebra.
-* **Gauss-Newton on the whole graph, its analysis held** (:mod:`posegraph.incremental.whole`, the
-  default). Every other edge, a prior, a removed edge or an anchor released by a join runs Gauss-Newton
-  on the whole graph with the block pattern and CHOLMOD's symbolic factorisation kept from update to
-  update; a fresh step that raises the cost even halved six times, or 30 steps short of the tolerance,
-  hand the update to the batch solver (:func:`posegraph.solve.optimize`, LM, warm), and so does a
-  *drastic* update from the start (:data:`DRASTIC`). ``whole=False`` solves growing regions around the
-  touched vertices instead (:mod:`posegraph.incremental.region`: rings doubled until the outermost one
-  barely moves, ``wildfire``; the batch solver past ``full_fraction`` of the graph).
+* **Gauss-Newton on the whole graph, its analysis held** (:mod:`posegraph.incremental.whole`). Every
+  other edge, a prior, a removed edge or an anchor released by a join runs Gauss-Newton on the whole
+  graph with the block pattern and CHOLMOD's symbolic factorisation kept from update to update; a fresh
+  step that raises the cost even halved six times, or 30 steps short of the tolerance, hand the update
+  to the batch solver (:func:`posegraph.solve.optimize`, LM, warm), and so does a *drastic* update
+  from the start (:data:`DRASTIC`).
 * **Stated tolerance.** Default ``tolerance = 1e-7`` (:data:`DEFAULT_TOLERANCE`): after each update the
   cost exceeds the optimum of the graph so far by at most about ``tolerance`` relative (measured at most
   1e-6 in ``benchmarks/bench_incremental.py``; the Newton decrement is the excess to second order, not a
@@ -33,7 +31,6 @@ from posegraph.errors import GraphError
 from posegraph.incremental.components import Components
 from posegraph.incremental.covariance import Covariances
 from posegraph.incremental.landmark_store import LandmarkStore, check_landmark_measurements
-from posegraph.incremental.region import SPARSE_LIMIT, Region, solve_region, solve_subgraph
 from posegraph.incremental.store import EdgeTerms, GraphStore, check_information, check_poses
 from posegraph.incremental.whole import WholeGraph
 from posegraph.lie.group import SE3
@@ -64,7 +61,8 @@ class UpdateInfo:
     """What one :meth:`IncrementalOptimizer.update` did."""
 
     kind: str
-    """``"none"`` (nothing added), ``"exact"`` (new poses by composition only), ``"region"``, ``"full"``."""
+    """``"none"`` (nothing added), ``"exact"`` (new poses by composition only), ``"whole"`` (Gauss-Newton on
+    the held analysis), ``"full"`` (the batch solver)."""
     seconds: float
     vertices: int
     """Free vertices Gauss-Newton ran on (0 for ``none``/``exact``)."""
@@ -107,20 +105,17 @@ class IncrementalOptimizer:
 
     ``group``: :data:`posegraph.lie.group.SE3` (default), ``SE2``, ``SIM3``. ``tolerance``: the relative
     cost excess aimed at (module docstring). ``params``: :class:`posegraph.solve.SolverParams` of the
-    solves handed to the batch solver (large regions, ``optimize``, ``verify``): its ``loss`` (a robust
-    loss, applied in every solve, the small regions' too), ``linear_solver``, ``ordering``, ``method``.
+    solves handed to the batch solver (``optimize``, ``verify``, drastic or failed updates): its ``loss``
+    (a robust loss, applied in every solve, the incremental ones too), ``linear_solver``, ``ordering``, ``method``.
     """
 
-    def __init__(self, group=SE3, *, tolerance: float = DEFAULT_TOLERANCE, params: SolverParams | None = None, verify: bool = False,
-                 wildfire: float = 1e-2, initial_radius: int = 8, full_fraction: float = 0.5, whole: bool = True):
+    def __init__(self, group=SE3, *, tolerance: float = DEFAULT_TOLERANCE, params: SolverParams | None = None, verify: bool = False):
         if not tolerance > 0:
             raise ValueError(f"tolerance must be positive, got {tolerance}")
         self.group, self.tolerance, self.verify = group, float(tolerance), bool(verify)
         self.params = SolverParams() if params is None else params
-        self.wildfire, self.initial_radius, self.full_fraction = wildfire, initial_radius, full_fraction
         self._store = GraphStore(group)
         self._landmarks = LandmarkStore(group)
-        self.whole = bool(whole)
         self._whole = WholeGraph(self._store, self.params.loss)
         self._components = Components()
         self._covariances = Covariances(self._store, self._whole, lambda: self._components.held, self.held)
@@ -390,7 +385,7 @@ class IncrementalOptimizer:
         if self._landmarks.count:  # the held analysis is of poses only
             result = self._batch_solve()
             return "full", int(np.count_nonzero(~self.held())), int(result.iterations)
-        kind, vertices, iterations = self._solve_whole() if self.whole else self._solve_region(seeds)
+        kind, vertices, iterations = self._solve_whole()
         if self.verify and kind != "full":
             self.optimize(method="gn")
             kind = "full"
@@ -424,31 +419,6 @@ class IncrementalOptimizer:
     def _batch_solve(self):
         """The batch solver from the current estimate, its relative tolerance at most :attr:`tolerance`."""
         return self.optimize(relative_tolerance=min(self.tolerance, self.params.relative_tolerance))
-
-    def _solve_region(self, seeds: list[int]) -> tuple[str, int, int]:
-        store, held = self._store, self._components.held
-        tol = self.tolerance * self.cost() + 1e-14
-        region = Region(store.adjacency, store.edge_from.view, store.edge_to.view, held, seeds)
-        radius, iterations = self.initial_radius, 0
-        while True:
-            region.grow(radius)
-            if len(region.vertices) > 400:
-                free = store.num_vertices - sum(held)
-                if len(region.vertices) > self.full_fraction * free and free > 1000:
-                    self.optimize()
-                    return "full", free, iterations + 1
-            vertices, edges = np.array(region.vertices, dtype=np.int64), region.edges()
-            outcome = None
-            if vertices.shape[0] * self.group.dim <= SPARSE_LIMIT:
-                outcome = solve_region(store, vertices, edges, store.fixed.view, self.params.loss, 0.01 * tol)
-            if outcome is None or not outcome.ok:
-                outcome = solve_subgraph(store, vertices, edges, store.fixed.view, self.params)
-            iterations += outcome.iterations
-            self._refresh_terms(edges)
-            ring = outcome.moved[vertices.shape[0] - len(region.frontier):]
-            if region.exhausted or ring.max(initial=0.0) <= self.wildfire * tol:
-                return "region", vertices.shape[0], iterations
-            radius *= 2
 
     def _refresh_terms(self, edges: np.ndarray, residuals: np.ndarray | None = None) -> None:
         """Per-edge cost terms of ``edges`` at the current estimate (from their ``residuals`` ``(k, d)`` at

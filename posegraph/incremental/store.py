@@ -2,8 +2,7 @@
 
 Appending a pose every few milliseconds must not copy the whole graph, so every array keeps spare
 capacity (doubled when full: amortised O(1) per row) and the live rows are a view of its head.
-Vertex ids map to indices through a dict; each vertex keeps the list of its edges (positions into the
-edge arrays) for the region searches of :mod:`posegraph.incremental.region`.
+Vertex ids map to indices through a dict.
 
 Validation lives here too: a batch is checked whole, against the graph and itself, before any row is
 written, so a bad batch raises :class:`posegraph.errors.GraphError` naming the first bad item and leaves
@@ -148,7 +147,6 @@ class GraphStore:
         self.measurements, self.information = Rows((k, k)), Rows((d, d))
         self.edge_keys = Rows((), np.int64)
         self.next_key = 0
-        self.adjacency: list[list[int]] = []
         self.pose_prior = (Rows((), np.int64), Rows((k, k)), Rows((d, d)))
         self.position_prior = (Rows((), np.int64), Rows((r,)), Rows((r, r)))
 
@@ -176,12 +174,10 @@ class GraphStore:
         self.fixed.extend(fixed)
         for offset, vertex in enumerate(ids.tolist()):
             self.index[vertex] = start + offset
-            self.adjacency.append([])
         return np.arange(start, self.ids.n)
 
     def add_edges(self, i: np.ndarray, j: np.ndarray, measurements: np.ndarray, information: np.ndarray) -> np.ndarray:
         """Append edges between vertex indices; their keys (stable handles for :meth:`remove_edges`)."""
-        start = self.edge_from.n
         keys = np.arange(self.next_key, self.next_key + len(i), dtype=np.int64)
         self.next_key += len(i)
         self.edge_from.extend(i)
@@ -189,10 +185,6 @@ class GraphStore:
         self.measurements.extend(measurements)
         self.information.extend(information)
         self.edge_keys.extend(keys)
-        adjacency = self.adjacency
-        for position, (a, b) in enumerate(zip(i.tolist(), j.tolist()), start):
-            adjacency[a].append(position)
-            adjacency[b].append(position)
         return keys
 
     def edge_positions(self, keys: np.ndarray) -> np.ndarray:
@@ -220,15 +212,11 @@ class GraphStore:
         return edge_errors(self.poses.view, sub)
 
     def remove_edges(self, positions: np.ndarray) -> None:
-        """Drop the edges at ``positions``; the adjacency lists are rebuilt."""
+        """Drop the edges at ``positions``."""
         keep = np.ones(self.edge_from.n, dtype=bool)
         keep[positions] = False
         for rows in (self.edge_from, self.edge_to, self.measurements, self.information, self.edge_keys):
             rows.keep(keep)
-        self.adjacency = [[] for _ in range(self.ids.n)]
-        for position, (a, b) in enumerate(zip(self.edge_from.view.tolist(), self.edge_to.view.tolist())):
-            self.adjacency[a].append(position)
-            self.adjacency[b].append(position)
 
     def add_pose_priors(self, vertices, measurements, information) -> None:
         for rows, values in zip(self.pose_prior, (vertices, measurements, information)):
