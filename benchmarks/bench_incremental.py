@@ -4,7 +4,8 @@ Each graph is replayed in vertex-id order, one new pose per update with every ed
 in, by both tools, each run in a fresh process (its peak memory is that process's ``ru_maxrss``),
 the tools alternating from round to round:
 
-* ours: :func:`posegraph.incremental.replay.replay` with default settings (``tolerance=1e-7``, ``DEFAULT_TOLERANCE``);
+* ours: :func:`posegraph.incremental.replay.replay` with default settings (``tolerance=1e-7``, ``DEFAULT_TOLERANCE``),
+  or ``--tolerance T``;
 * gtsam: ``ISAM2`` with default ``ISAM2Params`` (QR factorisation when Cholesky throws, as the issue's
   reference runs did in 2D), one ``update`` and one ``calculateEstimate`` per new pose, a tight prior on
   the first pose in place of our anchor (a loose one, ``LOOSE_PRIOR_SIGMA``, on a pose with no edge to the
@@ -108,7 +109,7 @@ def batch_excess(graph, poses) -> tuple[float, float]:
     return ours, (ours - best) / max(best, COST_FLOOR)
 
 
-def run_ours(graph, check_every: int) -> dict:
+def run_ours(graph, check_every: int, tolerance: float | None = None) -> dict:
     from posegraph.incremental import IncrementalOptimizer
     from posegraph.incremental.replay import replay
 
@@ -120,7 +121,7 @@ def run_ours(graph, check_every: int) -> dict:
             opt = result.optimizer
             checks.append((n,) + batch_excess(prefix(graph, n), opt.poses))
 
-    opt = IncrementalOptimizer(graph.group)
+    opt = IncrementalOptimizer(graph.group) if tolerance is None else IncrementalOptimizer(graph.group, tolerance=tolerance)
     result = replay(graph, 1, optimizer=opt, progress=progress)
     kinds = {k: result.kinds.count(k) for k in set(result.kinds)}
     return {"seconds": result.seconds.tolist(), "checks": checks, "analyses": opt._whole.analyses,
@@ -201,9 +202,9 @@ def _at(values, graph, key):
     return values.atPose2(key) if graph.group.name == "SE2" else values.atPose3(key)
 
 
-def worker(tool: str, name: str, check_every: int) -> dict:
+def worker(tool: str, name: str, check_every: int, tolerance: float | None = None) -> dict:
     graph = load(name)
-    data = (run_ours if tool == "posegraph" else run_gtsam)(graph, check_every)
+    data = run_ours(graph, check_every, tolerance) if tool == "posegraph" else run_gtsam(graph, check_every)
     s = np.asarray(data["seconds"])
     ex = np.array([c[2] for c in data["checks"]])
     return {
@@ -216,8 +217,9 @@ def worker(tool: str, name: str, check_every: int) -> dict:
     }
 
 
-def spawn(tool: str, name: str, check_every: int, timeout: float) -> dict:
+def spawn(tool: str, name: str, check_every: int, timeout: float, tolerance: float | None = None) -> dict:
     command = [sys.executable, "-m", "benchmarks.bench_incremental", "--worker", tool, name, "--check-every", str(check_every)]
+    command += [] if tolerance is None else ["--tolerance", repr(tolerance)]
     try:
         done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -241,12 +243,13 @@ def main(argv=None) -> int:
     parser.add_argument("--worker", nargs=2, metavar=("TOOL", "GRAPH"), help=argparse.SUPPRESS)
     parser.add_argument("--check-every", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--tolerance", type=float, default=None, help="ours: IncrementalOptimizer(tolerance=T)")
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per process")
     parser.add_argument("--json", metavar="PATH")
     parser.add_argument("--plot", metavar="PNG")
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.worker[0], args.worker[1], args.check_every)))
+        print(json.dumps(worker(args.worker[0], args.worker[1], args.check_every, args.tolerance)))
         return 0
     rows = []
     for name in args.graphs:
@@ -256,7 +259,7 @@ def main(argv=None) -> int:
         for repeat in range(args.repeats):
             tools = ("posegraph", "gtsam") if repeat % 2 == 0 else ("gtsam", "posegraph")
             for tool in tools:
-                rows.append(spawn(tool, name, args.check_every, args.timeout))
+                rows.append(spawn(tool, name, args.check_every, args.timeout, args.tolerance))
                 print(_line(rows[-1]), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps([{k: v for k, v in r.items() if k != "per_update"} for r in rows], indent=1))

@@ -173,6 +173,7 @@ class WholeGraph:
         self.current: tuple[int, int] | None = None  # (factorisations, vertices) of a factor at the solve's end
         self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
         self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
+        self.decrement = np.inf  # ½ gᵀH⁻¹g at the end of the last solve that met its tolerance
 
     def reset(self) -> None:
         self.pattern = self.factor = self.correction = None
@@ -314,6 +315,7 @@ class WholeGraph:
         evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
         self.last.clear()
         self.current = None
+        self.decrement = np.inf
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
@@ -328,6 +330,7 @@ class WholeGraph:
             step = -self._solve_full(g)
             decrement = -0.5 * float(g @ step)
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
+                self.decrement = decrement
                 self.last.keep(poses, evaluation, blocks)
                 self._end_factored(fresh, blocks, held, n)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
