@@ -314,8 +314,7 @@ class WholeGraph:
         start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
         evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
         self.last.clear()
-        self.current = None
-        self.decrement = np.inf
+        self.current, self.decrement = None, np.inf
         fresh, previous = True, np.inf
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
