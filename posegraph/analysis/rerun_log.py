@@ -180,6 +180,7 @@ def log_result(rec, graph, result, *, weights=None, covariances=None, chi2: dict
     """
     from posegraph.analysis.report import chi2_summary, edge_chi2
 
+    robust = weights is not None
     weights = np.ones(graph.num_edges) if weights is None else np.asarray(weights, dtype=np.float64)
     residuals = result.final_residuals  # the solver's, when they are of this graph's edges
     known = residuals is not None and np.shape(residuals) == (graph.num_edges, graph.information.shape[-1])
@@ -192,7 +193,7 @@ def log_result(rec, graph, result, *, weights=None, covariances=None, chi2: dict
     if history:
         _log_history(rec, history)
     chi2 = chi2_summary(graph, result.poses) if chi2 is None else chi2
-    rec.log("summary", require_rerun().TextDocument(_summary_markdown(graph, result, weights, chi2, title),
+    rec.log("summary", require_rerun().TextDocument(_summary_markdown(graph, result, weights, chi2, title, robust),
                                                     media_type="text/markdown"), static=True)
 
 
@@ -268,19 +269,27 @@ def _log_history(rec, history) -> None:
         rec.send_columns(f"metrics/gnc/{name}", indexes=[rounds], columns=rr.Scalars.columns(scalars=values))
 
 
-def _summary_markdown(graph, result, weights: np.ndarray, chi2: dict, title: str) -> str:
+def _summary_markdown(graph, result, weights: np.ndarray, chi2: dict, title: str, robust: bool = False) -> str:
+    """The summary's table, labelled as the command's: with robust weights the final cost is what the
+    robust solve minimised (½ Σ ρ(eᵀΩe), or GNC's ½χ² of the edges kept), beside ½ Σ eᵀΩe over every
+    measurement (``chi2["every"]``, the command's) and the χ² of the edges kept; χ²/dof undefined at dof 0."""
+    from posegraph.analysis.report import per_dof_text
+
     outliers = int(np.count_nonzero(weights < scene.OUTLIER_WEIGHT))
     odometry = int(np.count_nonzero(graph.odometry_mask()))
     rows = [
         ("poses / edges", f"{graph.num_vertices} / {graph.num_edges} ({odometry} odometry, "
                           f"{graph.num_edges - odometry} loop closures)"),
         ("initial cost", f"{result.initial_cost:.10g}"),
-        ("final cost", f"{result.final_cost:.10g} (½χ²)"),
-        ("χ² / dof", f"{chi2['chi2']:.10g} / {chi2['dof']} = {chi2['chi2_per_dof']:.4g}"),
+        ("final cost", f"{result.final_cost:.10g} " + ("(what the robust solve minimised)" if robust else "(½χ²)")),
+        ("χ² of the inliers / dof" if robust else "χ² / dof",
+         f"{chi2['chi2']:.10g} / {chi2['dof']} = {per_dof_text(chi2)}"),
         ("iterations", str(result.iterations)),
         ("termination", result.termination),
         ("outlier edges", f"{outliers} (weight < {scene.OUTLIER_WEIGHT})"),
     ]
+    if robust and "every" in chi2:
+        rows.insert(4, ("½χ², every measurement", f"{chi2['every']['cost']:.10g} (½ Σ eᵀΩe, no loss)"))
     if graph.landmarks is not None:
         rows.insert(1, ("landmarks", str(graph.landmarks.count)))
     table = "\n".join(f"| {name} | {value} |" for name, value in rows)
