@@ -18,6 +18,7 @@ use, so ``import posegraph`` stays cheap (no scipy, gtsam, Open3D or matplotlib 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 
 __version__ = "0.1.0"
 
@@ -26,6 +27,8 @@ _LAZY = {
     "PoseGraph": "posegraph.model.graph",
     "Priors": "posegraph.model.priors",
     "graph_facts": "posegraph.model.graph",
+    "connected_components": "posegraph.model.graph",
+    "component_anchors": "posegraph.model.graph",
     "read_g2o": "posegraph.io.g2o",
     "write_g2o": "posegraph.io.g2o",
     "cost": "posegraph.solve.residuals",
@@ -52,13 +55,15 @@ __all__ = sorted(_LAZY) + ["lie"]
 
 
 def __getattr__(name: str):
+    """A public name of ``_LAZY``, or a subpackage or module (``posegraph.incremental``, ``posegraph.io``)
+    imported on first use, as ``import posegraph`` alone leaves them (PEP 562)."""
     if name in _LAZY:
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
-    if name == "lie":
-        return importlib.import_module("posegraph.lie")
-    raise AttributeError(f"module 'posegraph' has no attribute {name!r}")
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__():

@@ -88,3 +88,13 @@ def _landmark_graph_start(graph: PoseGraph, method: str, options: dict) -> np.nd
         except NotPositiveDefiniteError:
             pass  # a pose or point its linear terms do not fix: the pose edges' start, as below
     return initialize(replace(graph, landmarks=None), method, **options)
+
+
+def __getattr__(name: str):
+    """A module of this package imported on first use (``posegraph.init.<module>`` after ``import posegraph``
+    alone; PEP 562)."""
+    import importlib.util
+
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,3 +21,13 @@ Order of imports, bottom up: losses, gnc, trust, measurements → active → sta
 from posegraph.robust.losses import LOSS_NAMES, RobustLoss, make_loss
 
 __all__ = ["LOSS_NAMES", "RobustLoss", "make_loss"]
+
+
+def __getattr__(name: str):
+    """A module of this package imported on first use (``posegraph.robust.<module>`` after ``import posegraph``
+    alone; PEP 562)."""
+    import importlib.util
+
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
