@@ -36,6 +36,7 @@ __all__ = [
     "marginal_covariances",
     "landmark_covariances",
     "joint_covariance",
+    "linearisation_point",
     "hessian_at",
     "factor_hessian",
     "BlockFactor",
@@ -581,7 +582,8 @@ def marginal_covariances(graph, poses, vertices=None, *, points=None) -> np.ndar
     """Marginal covariance of each requested vertex's pose: ``(k, d, d)``.
 
     ``poses``: shaped as ``graph.poses``, the point of linearisation (normally the optimised
-    poses); ``vertices``: ``(k,)`` vertex *indices* (``graph.index_of(ids)`` for ids), all vertices
+    poses), or the result that holds them (``OptimizeResult``, ``RobustResult``: its ``.poses`` and
+    ``.points``); ``vertices``: ``(k,)`` vertex *indices* (``graph.index_of(ids)`` for ids), all vertices
     when ``None``; ``d = graph.group.dim``. Block ``a`` is ``Cov(δ)`` of ``X ⊕ δ = X·Exp(δ)`` for
     ``X`` the pose of ``vertices[a]``, in the group's tangent order (``[ω; v]`` for SE(3),
     ``[v_x, v_y, ω]`` for SE(2)) — the convention of ``gtsam.Marginals.marginalCovariance``. Held vertices (``FIX`` and component
@@ -591,20 +593,45 @@ def marginal_covariances(graph, poses, vertices=None, *, points=None) -> np.ndar
     Raises :class:`posegraph.linalg.cholmod.NotPositiveDefiniteError` when H is not positive definite
     at ``poses``.
 
-    A landmark graph's H includes its landmark measurements (linearised at ``points`` ``(L, s)``, the
-    graph's positions when None; :func:`landmark_hessian_at`), so the poses' covariances are those
-    with the landmarks marginalised out; :func:`landmark_covariances` gives the landmarks'.
+    A landmark graph's H includes its landmark measurements, linearised at ``points`` ``(L, s)``
+    (:func:`landmark_hessian_at`), so the poses' covariances are those with the landmarks
+    marginalised out; :func:`landmark_covariances` gives the landmarks'. Its points are required
+    (:func:`linearisation_point`).
     """
+    poses, points = linearisation_point(graph, poses, points, "marginal_covariances")
     vertices = _vertex_indices(graph, vertices)
     return _diagonal_blocks(graph, poses, points, vertices, graph.group.dim)
+
+
+def linearisation_point(graph, poses, points, caller: str = "landmark_covariances"):
+    """``(poses (n, k, k), points (L, s) or None)``: where a covariance function linearises.
+
+    ``poses`` is an array or a result holding ``.poses`` and ``.points`` (``OptimizeResult``,
+    ``RobustResult``; an explicit ``points`` wins over the result's). A landmark graph without
+    points raises ``ValueError``: the graph's own positions are the file's, not the solve's, and
+    the covariances at them are silently other ones (on DLR's ``dlr.g2o``: landmarks' up to 98 %,
+    poses' up to 27 % apart, ``docs/covariances.md``); ``graph.landmarks.positions`` passed as
+    ``points`` says that they are meant.
+    """
+    if hasattr(poses, "poses"):
+        points = getattr(poses, "points", None) if points is None else points
+        poses = poses.poses
+    if graph.landmarks is not None and points is None:
+        raise ValueError(
+            f"{caller}: a landmark graph's covariances need its solved points as well as the poses: pass the "
+            f"result ({caller}(graph, result)) or its points (points=result.points); the graph's own "
+            "positions are the file's, not the optimised ones (points=graph.landmarks.positions if meant)"
+        )
+    return poses, points
 
 
 def landmark_covariances(graph, poses, points=None, landmarks=None) -> np.ndarray:
     """Marginal covariance of each requested landmark's position: ``(k, s, s)``.
 
-    ``poses`` ``(n, k, k)`` and ``points`` ``(L, s)`` (None: ``graph.landmarks.positions``) are the
-    point of linearisation, normally the optimised ones (``OptimizeResult.poses``/``.points``);
-    ``landmarks``: ``(k,)`` landmark *indices* (``graph.landmarks.index_of(ids)`` for ids), all when
+    ``poses`` ``(n, k, k)`` and ``points`` ``(L, s)`` are the point of linearisation, normally the
+    optimised ones: ``landmark_covariances(graph, result)`` takes both from an ``OptimizeResult``
+    (or ``RobustResult``), ``landmark_covariances(graph, result.poses, result.points)`` is the same;
+    poses without points raise ``ValueError`` (:func:`linearisation_point`). ``landmarks``: ``(k,)`` landmark *indices* (``graph.landmarks.index_of(ids)`` for ids), all when
     None; ``s = graph.landmarks.space_dim``. Block ``a`` is ``Cov(δ)`` of ``p + δ`` (world frame,
     additive: the solver's landmark step) — gtsam's ``Marginals.marginalCovariance`` of a
     ``Point2``/``Point3``. Gauge as :func:`marginal_covariances`: relative to the held vertices;
@@ -613,6 +640,7 @@ def landmark_covariances(graph, poses, points=None, landmarks=None) -> np.ndarra
     """
     if graph.landmarks is None:
         raise ValueError("the graph has no landmarks")
+    poses, points = linearisation_point(graph, poses, points)
     count = graph.landmarks.count
     landmarks = np.arange(count) if landmarks is None else np.asarray(landmarks)
     if landmarks.ndim != 1 or not np.issubdtype(landmarks.dtype, np.integer) and landmarks.size:
@@ -652,9 +680,10 @@ def joint_covariance(graph, poses, vertices, *, points=None) -> np.ndarray:
     block lies in the factor's pattern (one vertex an elimination-tree ancestor of the other,
     joined in ``L``) they come from :func:`selected_inverse`; otherwise — the usual case for the
     two ends of a candidate loop closure — from ``k·d`` columns of ``H⁻¹``, two triangular solves
-    with ``L`` each (:func:`_solve_columns`). A landmark graph's H includes its landmarks at ``points``
-    (:func:`marginal_covariances`).
+    with ``L`` each (:func:`_solve_columns`). ``poses`` may be a result; a landmark graph's H includes
+    its landmarks at ``points``, required as in :func:`marginal_covariances`.
     """
+    poses, points = linearisation_point(graph, poses, points, "joint_covariance")
     vertices = _vertex_indices(graph, vertices)
     d = graph.group.dim
     k = vertices.shape[0]

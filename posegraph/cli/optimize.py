@@ -228,9 +228,9 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
     with Ticker(status, "computing covariances"), Timer() as t:
         try:
-            covariances = marginal_covariances(held, result.poses)
+            covariances = marginal_covariances(held, result)
             if held.landmarks is not None:
-                covariances = {"poses": covariances, "landmarks": landmark_covariances(held, result.poses)}
+                covariances = {"poses": covariances, "landmarks": landmark_covariances(held, result)}
         except NotPositiveDefiniteError as exc:
             raise OutputError(f"cannot compute the covariances: the Gauss-Newton matrix at the result is not "
                               f"positive definite ({exc}); nothing written", path=args.covariances) from None

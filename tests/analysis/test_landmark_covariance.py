@@ -155,3 +155,21 @@ def test_subsets_joint_and_bad_indices():
         cv.landmark_covariances(graph, poses, points, [graph.landmarks.count])
     with pytest.raises(ValueError, match="no landmarks"):
         cv.landmark_covariances(replace(graph, landmarks=None), poses)
+
+
+def test_a_landmark_graph_needs_its_points_or_the_result():
+    """Poses without points would linearise at the file's positions (other covariances, silently): refused;
+    the result itself gives both."""
+    graph, _, _ = landmark_graph(SE2, 12, 8, ("position", "bearing_range"), noise=0.05, seed=3)
+    result = optimize(graph)
+    for call in (lambda: cv.landmark_covariances(graph, result.poses),
+                 lambda: cv.marginal_covariances(graph, result.poses),
+                 lambda: cv.joint_covariance(graph, result.poses, [1, 2])):
+        with pytest.raises(ValueError, match=r"solved points .* pass the result"):
+            call()
+    np.testing.assert_array_equal(cv.landmark_covariances(graph, result), cv.landmark_covariances(graph, result.poses, result.points))
+    np.testing.assert_array_equal(cv.marginal_covariances(graph, result), cv.marginal_covariances(graph, result.poses, points=result.points))
+    np.testing.assert_array_equal(cv.joint_covariance(graph, result, [1, 2]),
+                                  cv.joint_covariance(graph, result.poses, [1, 2], points=result.points))
+    at_file = cv.landmark_covariances(graph, result.poses, graph.landmarks.positions)  # asked for explicitly
+    assert relative_block_error(at_file, cv.landmark_covariances(graph, result)).max() > 1e-3
