@@ -187,14 +187,16 @@ def _add(seconds: dict, phase: str, start: float) -> None:
     seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
 
 
-def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, refine: bool = False, eta: float = DEFAULT_TOLERANCE,
+def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, refine: bool = True, eta: float = DEFAULT_TOLERANCE,
             staircase: bool = True, max_rank: int = 10) -> Certificate:  # fmt: skip
     """Certify a global minimiser of SE-Sync's isotropic objective for ``graph`` (module docstring).
 
-    ``poses`` ``(n, k, k)``: certify these poses as they are (their rotations with the best
-    translations define Λ; no solving, no staircase) — poses optimised for another cost, e.g. LM's on
-    the g2o cost, are *not* a critical point of F and will not certify; with ``refine=True`` they are
-    instead the start of the Newton refinement (in place of the LM candidate). ``eta``: the relative
+    ``poses`` ``(n, k, k)``: the start of the Newton refinement on F, in place of the LM candidate,
+    then verification and the staircase, as ``posegraph certify`` (``certify(graph, result.poses)``
+    certifies an LM result of the g2o cost: that is not a critical point of F when the information is
+    anisotropic, a few Newton steps from one). ``refine=False`` certifies the poses exactly as given
+    (their rotations with the best translations define Λ; no solving, no staircase): only F's own
+    critical points can pass, and a failure says so. ``eta``: the relative
     tolerance η; ``staircase=False`` stops after the rank-d test; ``max_rank`` caps the staircase
     (SE-Sync's ``rmax``). Pose priors are edges from a world vertex; the components are certified one
     by one (:func:`~posegraph.certification.problem.sync_problem`).
@@ -215,7 +217,7 @@ def certify(graph: PoseGraph, poses: np.ndarray | None = None, *, refine: bool =
         placed = blocks_to_poses(part.u, reference, anchor)
         out[vertices[vertices < n]] = placed[: np.count_nonzero(vertices < n)]
         parts.append(part)
-    return _certificate(parts, eta, seconds, out)
+    return _certificate(parts, eta, seconds, out, as_given=poses is not None and not refine)
 
 
 def _output_gauge(graph: PoseGraph, vertices: np.ndarray, has_world: bool) -> tuple[int, np.ndarray]:
@@ -228,8 +230,13 @@ def _output_gauge(graph: PoseGraph, vertices: np.ndarray, has_world: bool) -> tu
     return anchor, graph.poses[vertices[anchor]]
 
 
-def _certificate(parts: list[_Part], eta: float, seconds: dict, poses: np.ndarray) -> Certificate:
-    """Sum the components' figures and state the verdict (module docstring)."""
+AS_GIVEN = ("; the poses were checked as given (refine=False): poses that minimise another cost, such as "
+            "optimize's on the g2o cost, are not a critical point of SE-Sync's F; refine=True starts from them")
+"""The end of a negative verdict on poses checked as given (:func:`certify` with ``refine=False``)."""
+
+
+def _certificate(parts: list[_Part], eta: float, seconds: dict, poses: np.ndarray, as_given: bool = False) -> Certificate:
+    """Sum the components' figures and state the verdict (module docstring); ``as_given``: no refinement ran."""
     value = sum(p.value for p in parts)
     lower = sum(p.check.lower_bound for p in parts)
     allowed = sum(p.budget.allowed(p.value) for p in parts)
@@ -243,6 +250,8 @@ def _certificate(parts: list[_Part], eta: float, seconds: dict, poses: np.ndarra
     else:
         status = (f"not certified: Q − Λ has a negative eigenvalue ≈ {worst.check.min_eigenvalue:.3g}; "
                   f"F(x) − lower bound = {gap:.6g}")  # fmt: skip
+    if not certified and as_given:
+        status += AS_GIVEN
     return Certificate(
         certified=bool(certified), sesync_objective=float(value), lower_bound=float(lower), suboptimality_bound=float(gap),
         relative_suboptimality=float(gap / value) if value > 0 else float("inf"),

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import posegraph
-from posegraph.certification.certificate import certify
+from posegraph.certification.certificate import AS_GIVEN, certify
 from posegraph.certification.local import refine_poses, translations_given_rotations
 from posegraph.certification.problem import sync_problem
 from posegraph.certification.verify import data_scale
@@ -39,7 +39,7 @@ def test_low_noise_graph_certifies_at_rank_d(group):
     assert certificate.sesync_objective > 0.1
     assert abs(certificate.suboptimality_bound) <= 1e-9 * certificate.sesync_objective
     assert abs(certificate.min_eigenvalue) < 1e-8
-    again = certify(graph, poses=certificate.poses)  # the returned poses certify as given
+    again = certify(graph, poses=certificate.poses, refine=False)  # the returned poses certify as given
     assert again.certified
     assert again.sesync_objective == pytest.approx(certificate.sesync_objective, rel=1e-9)
 
@@ -50,7 +50,7 @@ def test_perturbed_estimate_is_not_certified(group):
     optimum = certify(graph)
     moved = optimum.poses.copy()
     moved[7] = moved[7] @ group.exp(np.r_[np.full(group.dim - 1, 0.0), 0.2] if group is SE2 else np.r_[0.2, 0, 0, 0, 0, 0])
-    certificate = certify(graph, poses=moved)
+    certificate = certify(graph, poses=moved, refine=False)
     assert not certificate.certified
     assert certificate.min_eigenvalue < 0 and certificate.proven_min_eigenvalue < certificate.min_eigenvalue
     assert certificate.sesync_objective > optimum.sesync_objective
@@ -110,7 +110,8 @@ def test_output_gauge_keeps_the_first_fixed_vertex():
 @GROUPS
 def test_anisotropic_optimum_certifies_only_after_refinement(group):
     """With anisotropic information LM's optimum of the g2o cost is not a critical point of F: as given
-    it does not certify; refined from it, it does, to the same F as the default candidate. (With
+    it does not certify, and the verdict says why; refined from it (the default), it does, to the same F
+    as the default candidate. (With
     isotropic information it can: it is then within η and 10⁻⁶ F of F's optimum.)"""
     import dataclasses
 
@@ -120,9 +121,10 @@ def test_anisotropic_optimum_certifies_only_after_refinement(group):
     information = information_matrices(np.random.default_rng(14), graph.num_edges, 1.0, 1e3, size=group.dim)
     graph = dataclasses.replace(graph, information=information)
     lm = posegraph.optimize(graph).poses
-    assert not certify(graph, poses=lm).certified
-    refined = certify(graph, poses=lm, refine=True)
-    assert refined.certified and "candidate" not in refined.seconds
+    as_given = certify(graph, poses=lm, refine=False)
+    assert not as_given.certified and as_given.status.endswith(AS_GIVEN)
+    refined = posegraph.certify(graph, lm)  # the default refines, as `posegraph certify` does
+    assert refined.certified and "candidate" not in refined.seconds and "refine" in refined.seconds
     assert refined.sesync_objective == pytest.approx(certify(graph).sesync_objective, rel=1e-9)
 
 
@@ -190,7 +192,7 @@ def test_a_local_minimum_with_small_information_is_not_certified():
         u = refine_poses(problem, u)[0]
         from posegraph.certification.certificate import blocks_to_poses
 
-        given = certify(graph, poses=blocks_to_poses(u, np.eye(4), 0))
+        given = certify(graph, poses=blocks_to_poses(u, np.eye(4), 0), refine=False)
         assert not given.certified and given.lower_bound <= lowest
     assert not best.certified or best.sesync_objective <= lowest * (1 + 1e-9)
 
@@ -204,7 +206,7 @@ def test_a_ring_with_a_wrong_closure_is_not_certified():
     certificate = certify(graph)
     assert not certificate.certified and certificate.proven_min_eigenvalue < 0
     assert certificate.lower_bound < certificate.sesync_objective * (1 - 1e-3)
-    at_file = certify(graph, poses=graph.poses)
+    at_file = certify(graph, poses=graph.poses, refine=False)
     assert certificate.sesync_objective <= at_file.sesync_objective  # the staircase never returns worse
 
 
