@@ -89,6 +89,31 @@ def _inverse_covariances(covariances: np.ndarray, numbers: np.ndarray, tag: str,
     return 0.5 * (inverse + np.swapaxes(inverse, 1, 2))
 
 
+def odometry_noise_note(records: dict, lines: dict, path: str, meaning: str) -> list[str]:
+    """A warning when ``ODOMETRY``'s entries, read as iSAM's square-root information, cannot be that.
+
+    Read as ``R`` (upper triangular, ``Ω = RᵀR``) the heading's standard deviation is ``1/|R_θθ|``
+    exactly, whatever the other entries; above π the edges say nothing about the heading — no file
+    means that, while covariances read as square roots give it (gtsam's ``victoria_park.txt``:
+    ``R_θθ = 4e-06``, σ_θ = 2.5e5 rad, and LM stops at its iteration cap). The note gives the
+    median σ_θ of both readings and the option that reads them as covariances. ``[]`` otherwise,
+    and for any other ``meaning``.
+    """
+    edges = records.get(ODOMETRY_TAG)
+    if meaning != "sqrt" or edges is None or len(edges) == 0:
+        return []
+    heading = np.abs(edges["info"][:, 5])  # R_θθ, the last entry of the upper triangle
+    heading = heading[np.isfinite(heading) & (heading > 0)]
+    if heading.size == 0 or np.median(1.0 / heading) <= np.pi:
+        return []
+    first = int(lines[ODOMETRY_TAG].numbers[0])
+    return [f"{path}:{first}: ODOMETRY's noise entries read as iSAM's square-root information (the default) give "
+            f"a median heading standard deviation of {np.median(1.0 / heading):.3g} rad, more than π: no "
+            f"information; read as covariances {np.median(np.sqrt(heading)):.3g} rad. They look like covariances "
+            "(as in gtsam's victoria_park.txt): --isam-information covariance "
+            "(read_g2o(..., isam_information=\"covariance\"))"]
+
+
 def odometry_records_in_g2o_order(records: dict, lines: dict, path: str, meaning: str) -> dict:
     """``records`` (by tag) with the ``ODOMETRY`` lines' 6 entries turned into g2o's information entries."""
     if meaning not in ISAM_INFORMATION:

@@ -25,7 +25,7 @@ from posegraph.io.g2o_checks import (
     space_dimension, topology, unit_quaternions,
 )
 from posegraph.io.g2o_format import FIX_TAG, PRIMARY_EDGE_TAG, READ_TAGS, RECORDS, Record, records_of
-from posegraph.io.g2o_isam import odometry_records_in_g2o_order
+from posegraph.io.g2o_isam import odometry_noise_note, odometry_records_in_g2o_order
 from posegraph.io.g2o_landmarks import (
     LANDMARK_TAGS, assemble_landmarks, landmark_refusal, landmark_space_dim, landmark_vertex_ids, measured_pose_ids,
     parse_landmarks,
@@ -147,11 +147,12 @@ def _parse(
     lines = {tag: groups.get(tag, empty) for tag in table}
     records, fix = _parse_lines(groups.get(FIX_TAG, empty), lines, table, path)
     records = edge2_records_in_g2o_order(records, lines, path, edge2_information)  # TORO's order told apart
+    isam_notes = odometry_noise_note(records, lines, path, isam_information)  # covariances read as square roots
     records = odometry_records_in_g2o_order(records, lines, path, isam_information)  # iSAM's square roots
     refusal = landmark_refusal(groups, set(_tags_of("edge", table)) | PRIOR_TAGS | LANDMARK_TAGS, poses_only, path)
     if refusal is not None and require_edges:
         raise refusal
-    notes = _skipped_note(skipped, first_line, path) + ([str(refusal)] if refusal is not None else [])
+    notes = _skipped_note(skipped, first_line, path) + ([str(refusal)] if refusal is not None else []) + isam_notes
     parsed = None if poses_only else parse_landmarks(groups, space_dim, path, repair_information, isam_information)
     # Stage 2: the values.
     vertices, edges, information, value_notes = _values(records, lines, table, path, repair_information)

@@ -220,3 +220,35 @@ def test_public_landmark_files(name, poses, edges, landmarks, tags, tmp_path):
         for a, b in zip(graph.landmarks.observations, back.landmarks.observations):
             np.testing.assert_array_equal(a.measurements, b.measurements)
             np.testing.assert_allclose(a.information, b.information, rtol=1e-15)
+
+
+def test_isam_odometry_covariances_read_as_square_roots_are_named(text_file):
+    """gtsam's victoria_park.txt holds covariances on iSAM's tags: read as square roots (the default) the
+    heading's σ is 1/R_θθ = 2.5e5 rad. Said on the first ODOMETRY line, with the option; iSAM's own
+    square roots (R_θθ = 500: σ 0.002 rad) and the covariance reading say nothing."""
+    covariances = "".join(f"ODOMETRY {i} {i + 1} 0.1 0 0.01 0.0001 0 0 4e-06 0 4e-06\n" for i in range(4))
+    landmark = "LANDMARK 2 1 3 1 0.4 0 0.4\n"
+    _, messages = read(text_file, "# gtsam\n" + covariances + landmark)
+    (note,) = [m for m in messages if "square-root information" in m]
+    assert ":2: ODOMETRY" in note and "2.5e+05 rad" in note and "0.002 rad" in note
+    assert "--isam-information covariance" in note
+    _, messages = read(text_file, covariances + landmark, isam_information="covariance")
+    assert not any("square-root information" in m for m in messages)
+    square_roots = "".join(f"ODOMETRY {i} {i + 1} 0.1 0 0.01 100 0 0 500 0 500\n" for i in range(4))
+    _, messages = read(text_file, square_roots + landmark)
+    assert not any("square-root information" in m for m in messages)
+
+
+def test_gtsams_victoria_park_read_as_covariances_converges():
+    """The reading the note proposes: LM converges well inside the iteration cap (the default reading: the
+    cap, 100 iterations, cost 0.041; docs/landmarks.md)."""
+    gtsam = pytest.importorskip("gtsam")
+    from posegraph.solve import optimize
+
+    path = gtsam.findExampleDataFile("victoria_park.txt")
+    _, messages = read_with_warnings(path)
+    assert any("They look like covariances" in m for m in messages)
+    graph, messages = read_with_warnings(path, isam_information="covariance")
+    assert not any("They look like covariances" in m for m in messages)
+    result = optimize(graph)
+    assert result.converged and result.iterations < 20
