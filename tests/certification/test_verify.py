@@ -11,7 +11,7 @@ import pytest
 from posegraph.certification.certificate import poses_to_blocks
 from posegraph.certification.local import refine_poses
 from posegraph.certification.problem import objective, sync_problem
-from posegraph.certification.verify import certificate_matrix, data_scale, lambda_blocks, verify
+from posegraph.certification.verify import SHIFT_FLOOR, certificate_matrix, data_scale, lambda_blocks, verify
 from posegraph.lie.group import SE2, SE3
 from tests.certification.dense import interleave, reduced_data_matrix, sesync_data_matrix, sesync_lambda
 from tests.certification.graphs import loop_graph
@@ -154,3 +154,25 @@ def test_products_by_bincount_and_by_scipy_agree(monkeypatch):
     for got in (*with_scipy, *without):
         expected = dense @ (vector if got.ndim == 1 else block)
         np.testing.assert_allclose(got, expected, atol=1e-10 * np.abs(dense).max())
+
+
+@GROUPS
+def test_psd_verdict_decided_by_the_budget_around_a_small_negative_eigenvalue(group):
+    """A point turned 0.02 rad off the optimum: Q − Λ has a small θ < 0 (dense eigvalsh). With the budget
+    2|θ| the shift proves Q − Λ + σI ≻ 0 within it (positive semidefinite within the tolerance); with
+    |θ|/2 no shift inside the budget can, and the verdict is no — the proven −σ staying below θ either way."""
+    problem, u = _critical_point(group)
+    moved = u.copy()
+    moved[5, :, 1:] = moved[5, :, 1:] @ group.rotations.exp(np.full(len(group.rotation_axes), 0.02))
+    lambdas = lambda_blocks(problem, moved)
+    theta = np.linalg.eigvalsh(_dense_q_minus_lambda(problem, lambdas))[0]
+    dn = lambdas.shape[0] * lambdas.shape[1]
+    assert -1e-2 * data_scale(problem) / dn < theta < -1e4 * SHIFT_FLOOR * data_scale(problem) / dn  # small, far above the floor
+    matrix, scale = certificate_matrix(problem, lambdas), data_scale(problem)
+    within = verify(matrix, moved, lambdas, 2 * abs(theta), scale)
+    outside = verify(matrix, moved, lambdas, abs(theta) / 2, scale)
+    assert within.positive_semidefinite and abs(theta) <= within.proven_shift <= 2 * abs(theta)
+    assert not outside.positive_semidefinite and outside.proven_shift >= abs(theta)
+    for result in (within, outside):
+        assert result.min_eigenvalue == pytest.approx(theta, rel=1e-6)
+        assert -result.proven_shift <= theta
