@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import gzip
 import io
+import os
+import threading
 import zlib
 
 import pytest
@@ -17,6 +19,9 @@ from posegraph.io.g2o import read_g2o
 from posegraph.io.text_input import BLOCK_BYTES, MAX_LINE_CHARS
 
 VERTEX = "VERTEX_SE3:QUAT {i} {i} 0 0 0 0 0 1"
+STREAM_PATIENCE = 30.0
+"""Seconds a test's FIFO writer waits for the reader's refusal before it ends the stream (a timeout, not a
+measurement: the refusal comes within a few MiB)."""
 EDGE = "EDGE_SE3:QUAT {i} {j} 1 0 0 0 0 0 1 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1"
 
 
@@ -116,6 +121,37 @@ def test_an_endless_line_of_data_is_refused_when_it_outgrows_any_line(tmp_path):
         read_g2o(path)
     assert info.value.line == 6 and "characters of data: no g2o line is that long" in info.value.reason
     assert len(str(info.value)) < 200
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="FIFOs are POSIX")
+def test_an_endless_line_streamed_through_a_fifo_is_refused_while_it_streams(tmp_path):
+    """A writer that never ends its line nor the stream: the reader must refuse the line once it outgrows
+    MAX_LINE_CHARS, while the writer is still writing — at the end of the stream (the finite file's case)
+    is too late, since that end never comes. The writer gives up after 8 × MAX_LINE_CHARS and a wait of
+    STREAM_PATIENCE seconds (so that a reader without the bound fails instead of hanging), then closes."""
+    fifo = tmp_path / "endless.g2o"
+    os.mkfifo(fifo)
+    refused, gave_up = threading.Event(), threading.Event()
+
+    def write() -> None:
+        try:
+            with open(fifo, "wb") as out:
+                out.write((graph_text() + "VERTEX_SE3:QUAT ").encode())
+                for _ in range(8 * MAX_LINE_CHARS // 65536):
+                    out.write(b"1" * 65536)
+                if not refused.wait(STREAM_PATIENCE):
+                    gave_up.set()
+        except BrokenPipeError:  # the reader refused and closed its end: the expected way out
+            pass
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    with pytest.raises(InputError) as info:
+        read_g2o(fifo)
+    refused.set()
+    writer.join(STREAM_PATIENCE)
+    assert not gave_up.is_set(), "refused only when the stream ended"
+    assert info.value.line == 6 and "characters of data: no g2o line is that long" in info.value.reason
 
 
 def test_a_long_comment_or_blank_line_is_no_data(tmp_path):
