@@ -115,11 +115,12 @@ def _run_gtsam_landmarks(status: Status, ours: dict):
     """gtsam on a landmark graph (:func:`posegraph.crosscheck.gtsam_landmarks.run_gtsam_landmarks`: its
     ``BearingRangeFactor2D``, ``BearingFactor2D``, ``PriorFactorPoint2/3`` and a ``CustomFactor`` for
     positions), always from posegraph's start (the poses and the landmarks they give)."""
-    from posegraph.crosscheck.gtsam_landmarks import run_gtsam_landmarks
+    from posegraph.crosscheck.gtsam_landmarks import python_factor_note, run_gtsam_landmarks
     from posegraph.init.landmarks import initialize_landmarks
 
     params, graph = ours["params"], ours["graph"]
     status(f"gtsam: {params.method}, start same as posegraph (landmark graphs: gtsam has no initialiser for them)")
+    status(python_factor_note(graph) or "gtsam: every landmark measurement as gtsam's own factor")
     return run_gtsam_landmarks(
         graph, ours["start"], initialize_landmarks(graph, ours["start"])[0], method=params.method,
         max_iterations=params.max_iterations, relative_tolerance=params.relative_tolerance,

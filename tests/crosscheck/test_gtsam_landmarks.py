@@ -82,3 +82,18 @@ def test_fixed_landmarks_are_held_by_gtsam():
     result = run_gtsam_landmarks(graph)
     np.testing.assert_allclose(result.points[fixed], graph.landmarks.positions[fixed], atol=1e-8)
     assert result.final_cost < result.initial_cost
+
+
+def test_the_python_factors_are_named_with_their_count_and_the_variables():
+    """Position measurements run as CustomFactors (slow inside gtsam's optimisers: module docstring): the
+    note counts them and the values copied per call; a graph of gtsam's own factors gets none."""
+    from posegraph.crosscheck.gtsam_landmarks import python_factor_note
+
+    graph, _, _ = landmark_graph(SE2, 7, 5, ("position", "bearing_range"), noise=0.1, seed=0)
+    positions = sum(f.count for f in graph.landmarks.observations if f.kind == "position")
+    note = python_factor_note(graph)
+    assert f"{positions:,} position measurements run as Python CustomFactors" in note
+    assert f"{graph.num_vertices + graph.landmarks.count:,} values" in note
+    native, _, _ = landmark_graph(SE2, 7, 5, ("bearing", "bearing_range", "prior"), noise=0.1, seed=0)
+    assert python_factor_note(native) is None
+    assert python_factor_note(replace(native, landmarks=None)) is None
