@@ -3,13 +3,14 @@
 The README's "Library API" says the names written ``posegraph.…`` are importable from ``posegraph``
 itself: ``posegraph.X`` (a ``_LAZY`` name or a subpackage) and ``posegraph.sub.module.X`` (each
 package imports its modules on first use). Its bullets also name plain functions (``graph_facts(graph)``,
-``connected_components(graph)``), which are ``posegraph.X`` too. The check runs in a fresh interpreter:
-in the test process other tests have imported the modules already, which would hide a missing
-lazy import.
+``connected_components(graph)``), which are ``posegraph.X`` too. The check runs in a fresh interpreter,
+each name after a fresh ``import posegraph`` (the package's modules dropped from ``sys.modules``): a
+module imported by another test, or by resolving another name, would hide a missing lazy import.
 """
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -20,8 +21,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 
-METHOD_BULLETS = ("* Incremental:",)
-"""Bullets whose bare ``name(`` spans are methods of a class (``add_edges(…)``), not package functions."""
+
+def package_functions() -> set[str]:
+    """Names of the functions and classes defined at the top of some module of the package (methods are not)."""
+    names = set()
+    for path in (ROOT / "posegraph").rglob("*.py"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        names |= {node.name for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+    return names
 
 
 def dotted_names(text: str) -> set[str]:
@@ -30,23 +37,20 @@ def dotted_names(text: str) -> set[str]:
 
 
 def library_api_functions(text: str) -> set[str]:
-    """Bare ``name(`` at the start of a code span in the Library API section's bullets: ``posegraph.name``."""
+    """Bare ``name(`` at the start of a code span in the Library API section, ``name`` a function of some
+    module (``graph_facts(graph)``; not a method such as ``add_edges(…)`` or ``rows(graph)``): ``posegraph.name``."""
     section = text.split("## Library API", 1)[1].split("\n## ", 1)[0]
-    bullets = re.split(r"\n(?=\* )", section)
-    names = set()
-    for bullet in bullets:
-        if bullet.startswith(METHOD_BULLETS):
-            continue
-        names |= set(re.findall(r"(?<![\w.])`([a-z_][a-z0-9_]*)\(", bullet))
-    return {f"posegraph.{name}" for name in names}
+    called = set(re.findall(r"(?<![\w.])`([a-z_][a-z0-9_]*)\(", section))
+    return {f"posegraph.{name}" for name in called & package_functions()}
 
 
 RESOLVE = """
-import json, sys
-import posegraph
+import importlib, json, sys
 missing = {}
 for name in json.loads(sys.argv[1]):
-    value = posegraph
+    for module in [m for m in sys.modules if m == "posegraph" or m.startswith("posegraph.")]:
+        del sys.modules[module]  # each name after a fresh `import posegraph`: none imported by another's side effect
+    value = importlib.import_module("posegraph")
     try:
         for part in name.split(".")[1:]:
             value = getattr(value, part)
