@@ -217,7 +217,7 @@ def _with_fixed(graph, ids: list, path: str):
 
 
 def _covariances(args, status: Status, held, result, seconds: dict):
-    """``(n, d, d)`` marginal covariances at the result, in the solve's gauge (``held``: with ``--fix``),
+    """``(n, d, d)`` marginal covariances at the result, in the solve's gauge (``held``: with ``--fix``, its points the solved ones),
     and with landmarks ``{"poses": …, "landmarks": (L, s, s)}`` (:func:`posegraph.analysis.covariance.landmark_covariances`).
 
     An H that is not positive definite there stops the command before anything is written.
@@ -228,9 +228,10 @@ def _covariances(args, status: Status, held, result, seconds: dict):
 
     with Ticker(status, "computing covariances"), Timer() as t:
         try:
-            covariances = marginal_covariances(held, result)
+            points = None if held.landmarks is None else held.landmarks.positions  # the solved ones (run: with_points)
+            covariances = marginal_covariances(held, result.poses, points=points)
             if held.landmarks is not None:
-                covariances = {"poses": covariances, "landmarks": landmark_covariances(held, result)}
+                covariances = {"poses": covariances, "landmarks": landmark_covariances(held, result.poses, points)}
         except NotPositiveDefiniteError as exc:
             raise OutputError(f"cannot compute the covariances: the Gauss-Newton matrix at the result is not "
                               f"positive definite ({exc}); nothing written", path=args.covariances) from None
