@@ -61,9 +61,21 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
-    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        return importlib.import_module(f"{__name__}.{name}")
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return _submodule(__name__, name)
+
+
+def _submodule(package: str, name: str):
+    """The module ``package.name`` imported, or AttributeError when there is none: the PEP 562
+    ``__getattr__`` of the face and of every subpackage (:func:`submodule_getattr`)."""
+    if not name.startswith("_") and importlib.util.find_spec(f"{package}.{name}") is not None:
+        return importlib.import_module(f"{package}.{name}")
+    raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+
+def submodule_getattr(package: str):
+    """A module ``__getattr__`` for the subpackage ``package`` that imports its modules on first use, so
+    that ``posegraph.model.landmarks`` works after ``import posegraph`` alone (PEP 562)."""
+    return lambda name: _submodule(package, name)
 
 
 def __dir__():

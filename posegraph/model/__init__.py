@@ -2,11 +2,6 @@
 (:mod:`posegraph.model.priors`). Above the Lie groups; below everything that reads, writes or solves a graph."""
 
 
-def __getattr__(name: str):
-    """A module of this package imported on first use (``posegraph.model.<module>`` after ``import posegraph``
-    alone; PEP 562)."""
-    import importlib.util
+from posegraph import submodule_getattr as _submodule_getattr  # noqa: E402
 
-    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        return importlib.import_module(f"{__name__}.{name}")
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = _submodule_getattr(__name__)  # its modules on first use (PEP 562)
