@@ -71,7 +71,7 @@ class SuspiciousEdges:
     relative to the refit level first; ``chi2`` ``(k,)`` their χ²_e at the poses judged; ``refit_chi2``
     ``(k,)`` theirs after the refit; ``level`` and ``refit_level`` the loop closures' median χ² at the
     poses judged and after the refit; ``gain`` the agreement gain (NaN when not judged); ``broken``
-    whether ``gain ≥ BROKEN_GAIN``; ``judged`` False when the graph has fewer than
+    whether ``gain ≥ BROKEN_GAIN``; ``screened`` (below); ``judged`` False when the graph has fewer than
     :data:`MIN_LOOP_CLOSURES` loop closures or landmarks (no verdict, nothing named).
     """
 
@@ -83,6 +83,9 @@ class SuspiciousEdges:
     gain: float
     broken: bool
     judged: bool
+    screened: bool = False
+    """No loop closure above :data:`SCREEN` × the level: the edges agree with each other at any χ²/dof
+    (no refit was run): a high χ²/dof is then a matter of the information matrices' scale, not of wrong edges."""
 
     def rows(self, graph, limit: int | None = None) -> list[dict]:
         """The first ``limit`` (all: None) suspicious edges as ``{"edge", "line", "from_id", "to_id", "chi2"}``
@@ -132,7 +135,7 @@ def suspicious_edges(graph, poses, params=None) -> SuspiciousEdges:
         # no loop closure stands out even before the refits: a graph agreeing with itself, judged at the
         # price of one χ² pass (sphere2500, torus3D: the refits cost as much as the solve again)
         empty = np.zeros(0)
-        return SuspiciousEdges(empty.astype(np.int64), empty, empty, level, level, 1.0, False, True)
+        return SuspiciousEdges(empty.astype(np.int64), empty, empty, level, level, 1.0, False, True, True)
     refit = _refit_chi2(graph, poses, chi2, loops, params)
     refit_level = float(np.median(refit[loops]))
     ratio = _relative(refit, refit_level)
