@@ -36,8 +36,10 @@ from benchmarks import harness
 
 ROOT = harness.ROOT
 DATA_DIR = ROOT.parent / "data-landmarks"
-"""Where the public files are fetched to, beside the checkout (as ``../shared``), never inside it."""
-DATA_FILES = ("victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
+"""Where the public files are fetched to, beside the checkout (as ``../shared``), never inside it:
+``dlr.g2o`` from doggydoggy0101/math_project (``pose_graph_optimization/data/dlr.g2o``, the Freiburg
+SLAM course's DLR set), the ``.g2o.gz`` files from grisetti/g2o_frontend (``datasets/2D/``)."""
+DATA_FILES = ("dlr.g2o", "victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
               "world-2000-full.g2o.gz", "world-2000-lownoise-default.g2o.gz", "world-2000-lownoise-full.g2o.gz",
               "isam_manhattanOlson3500.txt",
               "isam_victoriaPark.txt", "isam_cityTrees10000.txt", "isam_torus2000Points.txt")  # fmt: skip
