@@ -182,7 +182,7 @@ def _assemble(factors: list, sizes: np.ndarray, known: np.ndarray, values: np.nd
         for block, A, free in sides:
             weighted = A * f.w[:, :, None]  # W A
             at = offsets[block][:, None] + np.arange(A.shape[2])
-            np.add.at(g, at[free], np.einsum("mrs,mr->ms", weighted, y)[free])
+            g += np.bincount(at[free].ravel(), np.einsum("mrs,mr->ms", weighted, y)[free].ravel(), minlength=size)
             for other, B, free_other in sides:
                 both = free & free_other
                 entries.append(_block_entries(at[both], offsets[other][both][:, None] + np.arange(B.shape[2]),
