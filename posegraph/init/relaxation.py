@@ -16,13 +16,16 @@ the points::
 
 — the chordal relaxation (Martinez-Cantin and Castellanos; Carlone et al., ICRA 2015) with the
 landmarks in it. One sparse least-squares solve gives all unknowns; each ``R_i`` is projected to the
-nearest rotation; a second solve, rotations held, gives the translations and points (both stages
+nearest rotation; the same system is solved again (:data:`UNIT_PASSES` times) with one more equation
+per pose, ``⟨ū_i, u_i⟩ = ‖ū_i‖²`` at the last projection ``ū_i``, which keeps the relaxed rotations from
+shrinking (:func:`_relaxed_rotations`); a last solve, rotations held, gives the translations and points (all stages
 with the held poses (:func:`relaxation_anchors`) and the ``FIX`` landmarks known, their terms moved
 to the right-hand side). Bearings, being bilinear, enter only through the landmarks' own start
 (:func:`posegraph.init.landmarks.initialize_landmarks`) and the solver.
 
-Measured (``docs/landmarks.md``): Victoria Park from this start converges in 5 LM iterations to
-χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's poses: 87,156).
+Measured (``docs/landmarks.md``): Victoria Park from this start converges in 6 LM iterations to
+χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's poses: 87,156);
+DLR in 9 (15 from the relaxation without the unit equations).
 """
 
 from __future__ import annotations
