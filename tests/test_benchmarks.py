@@ -189,6 +189,19 @@ def test_landmark_children_reports_parse_and_tabulate(tmp_path):
     assert f"| gtsam | not read: gtsam.readG2o built {graph.num_edges} factors" in table
     assert "χ² ≤ g2opy's × (1 + 1e-6), g2o's definition: NO (relative +2.000e-06" in table
     assert "end-to-end ≤ 0.5 × g2opy's: yes (ratio 0.30)" in table
+    # g2opy's answer scored by the common cost: read back by posegraph, the same number as posegraph's cost of it
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve.objective import Objective
+
+    answer = read_g2o(tmp_path / "g2o_out.g2o")
+    common = bench_landmarks.common_cost_of(tmp_path / "g2o_out.g2o")
+    assert common == pytest.approx(Objective(answer).evaluate(answer.poses, answer.landmarks.positions).cost, rel=1e-12)
+    result["g2opy_common_cost"] = result["tools"]["posegraph"]["cost"] * (1 - 3e-6)  # g2opy's answer a little lower
+    result["comparison"] = bench_landmarks.compare(result)
+    table = "\n".join(bench_landmarks.file_table(result))
+    assert "posegraph's at or below (1e-6): NO" in table and not result["comparison"]["common_cost_met"]
+    assert "in process (read + start + solve + write): posegraph 0.030 s" in table
+    assert bench_landmarks.common_cost_of(tmp_path / "missing.g2o") is None
 
 
 def test_landmark_files_say_why_one_is_skipped(tmp_path):
