@@ -75,26 +75,36 @@ def _stream(folder: str):
     return rec
 
 
+def _timed(run, record: bool, folder: str, recorder_of, finish) -> tuple[float, float]:
+    """``(seconds of run(hook), seconds of the logging calls and the final flush)``: ``run(None)`` without
+    logging; with it, ``run(recorder)`` for ``recorder_of(rec)``, then ``finish(rec, recorder, result)``."""
+    if not record:
+        start = time.perf_counter()
+        run(None)
+        return time.perf_counter() - start, 0.0
+    rec = _stream(folder)
+    recorder = _Timed(recorder_of(rec))
+    start = time.perf_counter()
+    result = run(recorder)
+    done = time.perf_counter()
+    finish(rec, recorder.hook, result)
+    rec.flush()
+    rec.disconnect()
+    return done - start - recorder.seconds, recorder.seconds + time.perf_counter() - done
+
+
 def _optimize_once(graph, record: bool, folder: str) -> tuple[float, float]:
     """``(seconds of the solve, seconds of the logging calls and the final flush)``."""
     from posegraph.analysis.rerun_log import IterationRecorder, log_result, optimize_blueprint
     from posegraph.solve import SolverParams, optimize
 
-    if not record:
-        start = time.perf_counter()
-        optimize(graph)
-        return time.perf_counter() - start, 0.0
-    rec = _stream(folder)
-    recorder = _Timed(IterationRecorder(rec, graph))
-    start = time.perf_counter()
-    result = optimize(graph, params=SolverParams(estimate_callback=recorder))
-    solved = time.perf_counter()
-    recorder.hook.finish(result.poses, result.points)
-    log_result(rec, graph, result)
-    rec.send_blueprint(optimize_blueprint(graph, result.poses))
-    rec.flush()
-    rec.disconnect()
-    return solved - start - recorder.seconds, recorder.seconds + time.perf_counter() - solved
+    def finish(rec, recorder, result):
+        recorder.finish(result.poses, result.points)
+        log_result(rec, graph, result)
+        rec.send_blueprint(optimize_blueprint(graph, result.poses))
+
+    return _timed(lambda hook: optimize(graph, params=SolverParams(estimate_callback=hook)), record, folder,
+                  lambda rec: IterationRecorder(rec, graph), finish)
 
 
 def _replay_once(graph, record: bool, folder: str) -> tuple[float, float]:
@@ -102,20 +112,11 @@ def _replay_once(graph, record: bool, folder: str) -> tuple[float, float]:
     from posegraph.incremental.replay import replay, time_statistics
     from posegraph.incremental.rerun_replay import ReplayRecorder
 
-    if not record:
-        start = time.perf_counter()
-        replay(graph)
-        return time.perf_counter() - start, 0.0
-    rec = _stream(folder)
-    recorder = _Timed(ReplayRecorder(rec, graph))
-    start = time.perf_counter()
-    result = replay(graph, progress=recorder)
-    replayed = time.perf_counter()
-    cost = result.optimizer.cost()
-    recorder.hook.finish(result, (cost, cost, 0.0), time_statistics(result.seconds))
-    rec.flush()
-    rec.disconnect()
-    return replayed - start - recorder.seconds, recorder.seconds + time.perf_counter() - replayed
+    def finish(rec, recorder, result):
+        cost = result.optimizer.cost()
+        recorder.finish(result, (cost, cost, 0.0), time_statistics(result.seconds))
+
+    return _timed(lambda hook: replay(graph, progress=hook), record, folder, lambda rec: ReplayRecorder(rec, graph), finish)
 
 
 def in_process_case(command: str, rounds: int, folder: str) -> dict:
