@@ -257,3 +257,13 @@ def test_slow_phases_announce_themselves_on_large_graphs(monkeypatch, capsys, tm
     monkeypatch.setattr(optimize, "LARGE_GRAPH_POSES", 10**6)
     assert cli.main(["optimize", str(source), "-o", str(tmp_path / "o.g2o")]) == 0
     assert "…" not in capsys.readouterr().err
+
+
+def test_high_chi2_per_dof_is_warned_when_the_solve_stopped_short(tmp_path):
+    """The clean grid at Ω×100 stopped after one iteration: its edges agree with each other at that point
+    too, but a solve that did not converge is no evidence of a clean graph: the χ²/dof warning stays."""
+    clean, _ = outlier_grid(tmp_path, 0.0)
+    run = run_cli("optimize", _scaled_copy(clean, tmp_path, 100.0), "-o", tmp_path / "out.g2o", "-q",
+                  "--max-iterations", "1", "--init", "odometry")
+    assert run.returncode == 1, run.stderr  # the iteration cap
+    assert any("χ²/dof = " in line and "largest χ²" in line for line in run.stderr_lines), run.stderr
