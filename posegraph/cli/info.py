@@ -29,9 +29,10 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from posegraph.analysis.report import graph_info
 
-    graph, refusals = _read_for_description(args)
+    graph, refusals, notes = _read_for_description(args)
     info = graph_info(graph)
     info["optimize_refuses"] = refusals
+    info["notes"] = notes
     if args.json:
         import json
 
@@ -49,7 +50,7 @@ _REPAIRED = re.compile(r":(\d+): repaired (\d+) information matrices")
 
 
 def _read_for_description(args):
-    """``(graph, what optimize would refuse)``: the file read as leniently as the reader allows.
+    """``(graph, what optimize would refuse, notes)``: the file read as leniently as the reader allows.
 
     Indefinite information matrices are repaired (counted, and described as a refusal unless
     ``--repair-information`` was asked for), and a file without edges is read as a trajectory.
@@ -60,8 +61,7 @@ def _read_for_description(args):
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PosegraphWarning)  # the others as the command line filters them
-        graph, _ = read_graph(args.input, Status(True), require_edges=False, repair_information=True,
-                              **reader_options(args))
+        graph, notes = _read_leniently(args)
     refusals = []
     for w in caught:
         match = _REPAIRED.search(str(w.message))
@@ -73,7 +73,24 @@ def _read_for_description(args):
             warnings.warn(w.message, stacklevel=1)
     if graph.num_edges == 0:
         refusals.append("the file has no edges: there is nothing to optimise")
-    return graph, refusals
+    return graph, refusals, notes
+
+
+def _read_leniently(args):
+    """``(graph, notes)``: the file read as a trajectory (vertex lines required, edges not), or, when it has
+    edges but no vertex lines (gtsam's ``sphere2500.txt``, ``victoria_park.txt``), as ``optimize`` reads it:
+    the vertices its edges name, at the identity, said in a note. Standard input is read once only."""
+    from posegraph.errors import GraphError
+
+    options = reader_options(args)
+    try:
+        return read_graph(args.input, Status(True), require_edges=False, repair_information=True, **options)[0], []
+    except GraphError as err:
+        if args.input == "-" or "gives no poses to read" not in str(err):
+            raise
+    graph, _ = read_graph(args.input, Status(True), repair_information=True, uses_file_poses=False, **options)
+    return graph, [f"the file has no vertex lines: the {graph.num_vertices} vertices its edges name are at the "
+                   "identity, so the cost below is at identity poses (optimize starts from the chordal relaxation)"]
 
 
 _GROUP_NOTES = {"SE3": "", "SE2": " (2D: SE(2) poses)", "SIM3": " (Sim(3) poses: rotation, translation, scale)"}
@@ -116,6 +133,7 @@ def _rows(path: str, info: dict) -> list[tuple[str, str]]:
                                      f"{whole['coupled_edges']} edges couple rotation and translation"))
     rows.append(("initial cost", f"{fmt_cost(info['initial_cost'])} (½χ² at the file's poses; χ² "
                                  f"{fmt_cost(info['chi2'])}, χ²/dof {_per_dof(info)}, dof {info['dof']})"))
+    rows += [("note", note) for note in info["notes"]]
     for refusal in info["optimize_refuses"]:
         rows.append(("optimize refuses", refusal))
     return rows

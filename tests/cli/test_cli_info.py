@@ -136,3 +136,23 @@ def test_input_warnings_are_one_line_each(tmp_path):
     assert any(f"{path}:5:" in line and "PARAMS_CAMERACALIB" in line for line in warnings)
     assert any("2 connected components" in line for line in warnings)
     assert re.search(r"components:\s+2", run.stdout)
+
+
+def test_an_edge_only_file_is_described_with_a_note_as_optimize_reads_it(tmp_path):
+    """Edges but no vertex lines (gtsam's sphere2500.txt, victoria_park.txt): ``info`` describes the graph
+    whose vertices the edges name, at the identity, and says so; ``optimize`` reads it the same way."""
+    path = tmp_path / "edges.g2o"
+    path.write_text("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\nEDGE_SE2 0 2 2 0 0 1 0 0 1 0 1\n")
+    run = run_cli("info", path)
+    assert run.returncode == 0, run.stderr
+    assert re.search(r"^vertices:\s+3 ", run.stdout, re.M)
+    assert re.search(r"^note:\s+the file has no vertex lines: the 3 vertices .* identity", run.stdout, re.M)
+    described = json.loads(run_cli("info", path, "--json").stdout)
+    assert described["num_vertices"] == 3 and len(described["notes"]) == 1 and described["optimize_refuses"] == []
+
+
+def test_a_file_with_neither_vertices_nor_edges_is_still_refused(tmp_path):
+    path = tmp_path / "empty.g2o"
+    path.write_text("# nothing\n")
+    run = run_cli("info", path)
+    assert_one_error_line(run, "no pose graph to read")
