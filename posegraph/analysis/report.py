@@ -158,14 +158,19 @@ def chi2_summary(graph, poses=None, residuals=None) -> dict:
         total, rows = total + float(landmark.sum()), rows + landmark_rows
         unknowns.append(free_points)
     dof = sum(t["count"] * t["size"] for t in rows) - sum(t["count"] * t["size"] for t in unknowns)
-    lines = getattr(graph, "edge_lines", None)
-    worst = []
-    for e in np.argsort(-chi2, kind="stable")[:WORST_EDGES]:
-        worst.append({"line": int(lines[e]) if lines is not None else None,
-                      "from_id": int(graph.ids[graph.edge_from[e]]), "to_id": int(graph.ids[graph.edge_to[e]]),
-                      "chi2": float(chi2[e])})
+    worst = np.argsort(-chi2, kind="stable")[:WORST_EDGES]
+    worst = [{k: v for k, v in row.items() if k != "edge"} for row in edge_rows(graph, worst, chi2[worst])]
     return {"cost": total / 2, "chi2": total, "dof": int(dof), "chi2_per_dof": total / dof if dof > 0 else float("nan"),
             "dof_parts": {"rows": rows, "unknowns": unknowns}, "by_kind": by_kind, "worst_edges": worst}
+
+
+def edge_rows(graph, edges, chi2) -> list[dict]:
+    """``{"edge", "line", "from_id", "to_id", "chi2"}`` for each edge index of ``edges`` ``(k,)`` with its
+    ``chi2`` ``(k,)``: ``line`` in the file (None for a graph not read from one), the vertices' ids."""
+    lines = getattr(graph, "edge_lines", None)
+    return [{"edge": int(e), "line": int(lines[e]) if lines is not None else None,
+             "from_id": int(graph.ids[graph.edge_from[e]]), "to_id": int(graph.ids[graph.edge_to[e]]),
+             "chi2": float(c)} for e, c in zip(edges, chi2)]
 
 
 def _term(what: str, count: int, size: int) -> dict:

@@ -89,11 +89,10 @@ class SuspiciousEdges:
 
     def rows(self, graph, limit: int | None = None) -> list[dict]:
         """The first ``limit`` (all: None) suspicious edges as ``{"edge", "line", "from_id", "to_id", "chi2"}``
-        (``line`` in the file, None for a graph not read from one)."""
-        lines = graph.edge_lines
-        return [{"edge": int(e), "line": int(lines[e]) if lines is not None else None,
-                 "from_id": int(graph.ids[graph.edge_from[e]]), "to_id": int(graph.ids[graph.edge_to[e]]),
-                 "chi2": float(c)} for e, c in zip(self.edges[:limit], self.chi2[:limit])]
+        (:func:`posegraph.analysis.report.edge_rows`)."""
+        from posegraph.analysis.report import edge_rows
+
+        return edge_rows(graph, self.edges[:limit], self.chi2[:limit])
 
     def as_dict(self, graph, limit: int | None = None) -> dict:
         """A JSON dict: ``judged, broken, agreement_gain, level, refit_level, count, edges`` (:meth:`rows`)."""

@@ -121,9 +121,9 @@ class RobustResult:
     """``(k,)`` 0-based indices of known inliers released because their residual failed the inlier
     test at a result (:func:`~posegraph.robust.trust.known_inliers_above`); GNC then ran again."""
     suspicious: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    """``(k,)`` indices of trusted edges whose residual exceeds the inlier threshold at the result:
-    the doubted ones a run without trusting them rejected (``strict_known_inliers``), and those above
-    ``c̄²`` but not above the family-wise doubt threshold (:func:`doubt_thresholds`), kept."""
+    """``(k,)`` indices of trusted edges kept though doubted: those a run without trusting them
+    rejected (``strict_known_inliers``), and those still above the family-wise doubt threshold
+    (:func:`doubt_thresholds`) at the result."""
     prior_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """``(u,)`` final weight of every prior (pose priors, then position priors): GNC judges them like
     the edges, never trusting them; a wrong GNSS fix ends at weight 0 like a wrong loop closure."""
