@@ -26,7 +26,7 @@ import numpy as np
 from posegraph.io.atomic import atomic_path
 from posegraph.lie.group import embed_in_se3
 
-__all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances",
+__all__ = ["require_matplotlib", "trajectory_figure", "plot_trajectories", "planar_translation_covariances", "position_covariances",
            "draw_uncertainty_ellipses", "prior_positions"]
 
 # Colour-blind-safe qualitative palette (Okabe & Ito 2008), cycled for more graphs.
@@ -187,13 +187,18 @@ def _equal_scales(ax, lows: list, highs: list) -> None:
 
 
 def planar_translation_covariances(poses: np.ndarray, covariances: np.ndarray) -> np.ndarray:
-    """``(n, 2, 2)`` world-frame covariance of each pose's x–y position, from its tangent covariance.
+    """``(n, 2, 2)`` world-frame covariance of each pose's x–y position (the top view): the x–y block of
+    :func:`position_covariances`."""
+    return position_covariances(poses, covariances)[:, :2, :2]
+
+
+def position_covariances(poses: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """``(n, k, k)`` world-frame covariance of each pose's position, from its tangent covariance.
 
     ``poses`` ``(n, 4, 4)`` with ``covariances`` ``(n, 6, 6)`` in gtsam's SE(3) order ``[ω; v]``, or
     ``(n, 3, 3)`` with ``(n, 3, 3)`` in SE(2)'s ``[v_x, v_y, ω]``. Under the right perturbation
     ``X·Exp(δ)`` the position moves by ``R·v`` to first order (``R`` the pose's rotation, ``v`` the
-    translational part of ``δ``, in the body frame), so the position's covariance is ``R Σ_vv Rᵀ``;
-    its x–y block is returned (the top view).
+    translational part of ``δ``, in the body frame), so the position's covariance is ``R Σ_vv Rᵀ``.
     """
     poses, covariances = np.asarray(poses, dtype=np.float64), np.asarray(covariances, dtype=np.float64)
     k = poses.shape[-1] - 1  # 3 for SE(3), 2 for SE(2)
@@ -203,8 +208,7 @@ def planar_translation_covariances(poses: np.ndarray, covariances: np.ndarray) -
                          "(n, 4, 4) with (n, 6, 6) or (n, 3, 3) with (n, 3, 3)")
     v = slice(3, 6) if d == 6 else slice(0, 2)
     R = poses[:, :k, :k]
-    world = R @ covariances[:, v, v] @ np.swapaxes(R, -1, -2)
-    return world[:, :2, :2]
+    return R @ covariances[:, v, v] @ np.swapaxes(R, -1, -2)
 
 
 ELLIPSE_COLOUR = "#D55E00"

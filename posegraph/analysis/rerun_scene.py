@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from posegraph.analysis.plot import position_covariances
+
 __all__ = [
     "positions", "headings", "edge_segments", "weight_colours", "chi2_colours", "covariance_ellipsoids",
     "ellipse_outlines", "selected_poses", "FrameBudget", "OUTLIER_WEIGHT", "INLIER_COLOUR", "OUTLIER_COLOUR",
@@ -94,22 +96,13 @@ def selected_poses(n: int, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, count).round().astype(np.int64))
 
 
-def _world_position_covariances(poses: np.ndarray, covariances: np.ndarray) -> np.ndarray:
-    """``(n, k, k)`` world covariance ``R Σ_vv Rᵀ`` of each pose's position, from its tangent covariance
-    (right perturbation ``X·Exp(δ)`` moves the position by ``R v``; SE(3) ``[ω; v]``, SE(2) ``[v_x, v_y, ω]``)."""
-    k = poses.shape[-1] - 1
-    v = slice(3, 6) if k == 3 else slice(0, 2)
-    rotation = poses[:, :k, :k]
-    return rotation @ covariances[:, v, v] @ np.swapaxes(rotation, -1, -2)
-
-
 def covariance_ellipsoids(poses: np.ndarray, covariances: np.ndarray, sigma: float = 1.0):
     """``(centres (n, 3), half_sizes (n, 3), quaternions (n, 4) xyzw)`` of the ``sigma``-σ ellipsoid of each
-    SE(3) pose's position: half-sizes ``sigma·√λ`` along the eigenvectors of :func:`_world_position_covariances`."""
+    SE(3) pose's position: half-sizes ``sigma·√λ`` along the eigenvectors of :func:`posegraph.analysis.plot.position_covariances`."""
     from posegraph.lie import so3
 
     poses, covariances = np.asarray(poses, np.float64), np.asarray(covariances, np.float64)
-    eigenvalues, eigenvectors = np.linalg.eigh(_world_position_covariances(poses, covariances))
+    eigenvalues, eigenvectors = np.linalg.eigh(position_covariances(poses, covariances))
     flip = np.linalg.det(eigenvectors) < 0
     eigenvectors[flip, :, 0] *= -1  # a rotation, not a reflection
     half_sizes = sigma * np.sqrt(np.clip(eigenvalues, 0.0, None))
@@ -120,7 +113,7 @@ def ellipse_outlines(poses: np.ndarray, covariances: np.ndarray, sigma: float = 
     """``(n, segments + 1, 3)`` closed outlines at ``z = 0`` of the ``sigma``-σ ellipse of each SE(2) pose's
     position: ``c + sigma·L u`` for unit vectors ``u``, ``L Lᵀ`` the world position covariance."""
     poses, covariances = np.asarray(poses, np.float64), np.asarray(covariances, np.float64)
-    eigenvalues, eigenvectors = np.linalg.eigh(_world_position_covariances(poses, covariances))
+    eigenvalues, eigenvectors = np.linalg.eigh(position_covariances(poses, covariances))
     root = eigenvectors * np.sqrt(np.clip(eigenvalues, 0.0, None))[:, None, :]  # (n, 2, 2)
     angle = np.linspace(0.0, 2 * np.pi, segments + 1)
     circle = np.stack([np.cos(angle), np.sin(angle)])  # (2, segments + 1)
