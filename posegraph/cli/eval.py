@@ -44,9 +44,9 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def read_poses(path: str, repair_information: bool, with_format: bool = False):
-    """``(keys (n,), poses)`` of a g2o, TUM or KITTI file: vertex ids, timestamps or line numbers;
-    ``with_format``: ``(keys, poses, "g2o" | "tum" | "kitti")``."""
+def read_poses(path: str, repair_information: bool):
+    """``(keys (n,), poses, "g2o" | "tum" | "kitti")`` of a g2o, TUM or KITTI file: vertex ids, timestamps
+    or line numbers, the poses, and the file's format."""
     from posegraph.io import trajectory
 
     kind = "g2o" if path == "-" else trajectory.file_format(path)
@@ -58,7 +58,7 @@ def read_poses(path: str, repair_information: bool, with_format: bool = False):
         from posegraph.analysis.evaluate import read_trajectory
 
         keys, poses = read_trajectory(path, repair_information=repair_information)
-    return (keys, poses, kind) if with_format else (keys, poses)
+    return keys, poses, kind
 
 
 PLANE_TOLERANCE = 1e-6
@@ -122,8 +122,8 @@ def run(args) -> int:
         estimate_ids, estimate_poses, reference_ids, reference_poses = _against_priors(args)
         args.no_align = True  # the priors fix the frame
     else:
-        estimate_stamps, estimate_poses, estimate_format = read_poses(args.estimate, args.repair_information, True)
-        reference_stamps, reference_poses, reference_format = read_poses(args.reference, args.repair_information, True)
+        estimate_stamps, estimate_poses, estimate_format = read_poses(args.estimate, args.repair_information)
+        reference_stamps, reference_poses, reference_format = read_poses(args.reference, args.repair_information)
         check_dimensions((args.estimate, estimate_poses, estimate_format),
                          (args.reference, reference_poses, reference_format))
         estimate_ids, reference_ids = matching_keys(estimate_stamps, reference_stamps, args.max_time_diff)
