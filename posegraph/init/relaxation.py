@@ -302,12 +302,12 @@ def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, v
         at = offsets[:n, None] + np.arange(K)
         weights = np.where(known[:n], 0.0, diagonal[np.where(known[:n, None], 0, at)].mean(axis=1))
     x = system.solve(g)
-    for _ in range(passes + 1):
+    for solved in range(passes + 1):
         u = _blocks(x, offsets, np.arange(n), K, known, values)
         rotations = graph.group.rotations.project(np.einsum("nk,kab->nab", u, basis))
         rotations[known[:n]] = graph.poses[known[:n], :r, :r]
-        if _ < passes:
-            unit_triplets, unit_g, _o = _assemble([_unit_factors(rotations, basis, weights)], sizes, known, values)
+        if solved < passes:
+            unit_triplets, unit_g, _ = _assemble([_unit_factors(rotations, basis, weights)], sizes, known, values)
             x = system.solve(g + unit_g, unit_triplets[2])
     return rotations
 
