@@ -67,7 +67,7 @@ excesses that stay an order of magnitude below the 1e-6 the optimiser is measure
 SOLVE_SHARE = 0.1
 """A solve under a tolerance looser than DEFAULT_TOLERANCE stops when its Newton decrement is below this
 share of it (:attr:`IncrementalOptimizer.solve_tolerance`): the rest is the budget that lets later updates
-be deferred (:meth:`IncrementalOptimizer._deferrable`) and a margin for the decrement being the excess to
+be deferred (:meth:`IncrementalOptimizer._defer_if_bounded`) and a margin for the decrement being the excess to
 second order only (a solve stopped at the full tolerance ended 0.7 % above it on a random SE(2) graph)."""
 
 
@@ -382,7 +382,7 @@ class IncrementalOptimizer:
                 self._excess = None  # a removal can lower the optimum: the bound is lost
             before = self.cost() if self._excess is not None else None
             touched, landmark_work, placed = commit_batch(self, batch)
-            kind, vertices, iterations = self._solve(touched, landmark_work, self._deferrable(batch, before))
+            kind, vertices, iterations = self._solve(touched, landmark_work, self._defer_if_bounded(batch, before))
             if kind != "exact" or batch.pose_priors or batch.position_priors:
                 # an exact update moves nothing and adds landmark terms that vanish (first sightings); else re-evaluate
                 self._unary = None
@@ -415,11 +415,11 @@ class IncrementalOptimizer:
             self._excess = self._whole.decrement
         return kind, vertices, iterations
 
-    def _deferrable(self, batch, before: float | None) -> bool:
-        """Whether this update may leave the estimate where it is, the excess still within ``tolerance``
+    def _defer_if_bounded(self, batch, before: float | None) -> bool:
+        """Defer this update when it may leave the estimate where it is, the excess still within ``tolerance``
         (module docstring, *Deferred updates*): terms were only added (no removal, no landmark), and the
         bound on the excess before it plus the cost they added is at most ``tolerance/(1 + tolerance)``
-        of the cost now. Keeps the bound (that sum) when so."""
+        of the cost now; then keeps that sum as the bound, drops the held factor and returns True."""
         if before is None or self.verify or batch.removals or batch.landmarks or batch.landmark_measurements \
                 or batch.landmark_removals or self._landmarks.count:
             return False
