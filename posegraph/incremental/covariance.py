@@ -213,9 +213,4 @@ class Covariances:
             self.factorizations += 1
         d = self.store.group.dim
         columns = (d * whole.pattern.variable_of[np.asarray(vertices)][:, None] + np.arange(d)).ravel()
-        y = whole.factor.unit_forward(columns)
-        block = y.T @ y
-        if whole.correction is not None:
-            z = whole.correction.z[columns]
-            block -= z @ whole.correction.inverse @ z.T
-        return 0.5 * (block + block.T)
+        return whole.held_factor.inverse_block(columns)

@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from posegraph.incremental.lowrank import LowRankCorrection, edge_factors
+from posegraph.incremental.held_factor import HeldFactor, LowRankTerms, edge_terms
 from posegraph.incremental.reuse import LastPoint
 from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
@@ -86,6 +86,11 @@ MAX_LEFT_OUT = 2
 back by a low-rank correction (:mod:`posegraph.incremental.lowrank`) before a new analysis is made. The
 correction costs d solves per left-out edge at every numeric factorisation (cvxopt's CHOLMOD solves
 one right-hand side at a time), so only a few are worth it against one analysis."""
+
+MAX_COLUMNS = 240
+"""Scalar columns of low-rank terms (edges and vertices added since the last numeric factorisation,
+left-out edges) past which a step refactorises instead: each held step costs products of size
+``|R| × q`` and a ``q × q`` solve, which grow past one factorisation's cost (measured, docs/incremental.md)."""
 
 
 def _off_keys(pattern) -> tuple[np.ndarray, np.ndarray]:
@@ -158,6 +163,9 @@ class WholeGraph:
     max_left_out = MAX_LEFT_OUT
     """Edges left out of H (low-rank correction) before an analysis (0: every missing block re-analyses)."""
 
+    max_columns = MAX_COLUMNS
+    """Columns of low-rank terms the held factor takes before a step refactorises (0: every step does)."""
+
     def __init__(self, store, loss=None):
         from posegraph.incremental.store import Rows
 
@@ -165,18 +173,18 @@ class WholeGraph:
         d = store.group.dim
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
-        self.pattern = self.factor = self.correction = None
+        self.pattern = self.factor = self.held_factor = None
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
         self.covariance_wanted = False  # a covariance was asked since the last solve (set by the optimiser)
         self.current: tuple[int, int] | None = None  # (factorisations, vertices) of a factor at the solve's end
-        self.analyses = self.factorizations = self.corrections = self.chord_chances = 0
+        self.analyses = self.factorizations = self.corrections = self.chord_chances = self.held_steps = 0
         self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
         self.decrement = np.inf  # ½ gᵀH⁻¹g at the end of the last solve that met its tolerance
 
     def reset(self) -> None:
-        self.pattern = self.factor = self.correction = None
+        self.pattern = self.factor = self.held_factor = None
         self.hessian_at.n = self.gradient_at.n = 0
         self.left_out = np.zeros(0, dtype=np.int64)
         self.last.clear()
@@ -217,6 +225,7 @@ class WholeGraph:
         self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d,
                                                  positions=False)
         self.keys, self.first = _off_keys(pattern)
+        self.held_factor = None
         self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, permutation=self._order(pattern))
         variable = pattern.variable_of
         hessian, gradient, _ = edge_positions(pattern, self.keys, self.first, variable[i], variable[j])
@@ -237,26 +246,58 @@ class WholeGraph:
         order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
         return block_permutation(order, pattern.block_size)
 
-    def _factorize(self, data: np.ndarray, blocks) -> None:
-        """Numeric factorisation of ``data`` (H without the left-out edges), and the low-rank correction
-        that adds them back from ``blocks`` (the same linearisation); raises NotPositiveDefiniteError."""
-        self.correction = None
+    def _factorize(self, data: np.ndarray, n: int, weighted: bool) -> None:
+        """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
+        (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
+        self.held_factor = None
         self.factor.factorize(data)
-        if self.left_out.shape[0]:
-            i, j = self.store.edge_from.view[self.left_out], self.store.edge_to.view[self.left_out]
-            variable = self.pattern.variable_of
-            rows, values = edge_factors(blocks, self.left_out, variable[i], variable[j], self.pattern.block_size)
-            self.correction = LowRankCorrection(self.factor.solve, rows, values, self.pattern.dimension)
-            self.corrections += 1
+        self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted)
 
-    def _fresh(self, blocks, held: np.ndarray, n: int) -> np.ndarray | None:
+    def _prior_count(self) -> int:
+        priors = self.store.priors()
+        return 0 if priors is None else len(priors)
+
+    def _low_rank(self, blocks, n: int) -> LowRankTerms:
+        """The terms ``H − H0`` of the held factor at the linearisation ``blocks``: the Hessian blocks of
+        the edges added since it was made and of the left-out edges, minus the unit diagonal of the
+        vertices added since (decoupled in ``H0``)."""
+        held, store = self.held_factor, self.store
+        extra = np.union1d(self.left_out, np.arange(held.edges, store.num_edges))
+        variable = self.pattern.variable_of
+        ci, cj = variable[store.edge_from.view[extra]], variable[store.edge_to.view[extra]]
+        new = variable[held.vertices : n]
+        self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
+        return edge_terms(blocks, extra, ci, cj, self.pattern.block_size, new[new >= 0])
+
+    def _held_terms(self, blocks, n: int) -> LowRankTerms | None:
+        """The low-rank terms when the held factor can take this step; None when a refactorisation is
+        due: no factor, priors added since, a factor without the loss weights a loss needs, or more than
+        ``max_columns`` columns of terms (past the break-even against one factorisation)."""
+        held = self.held_factor
+        if held is None or held.priors != self._prior_count() or (self.loss is not None and not held.weighted):
+            return None
+        terms = self._low_rank(blocks, n)
+        return terms if terms.columns.shape[0] <= self.max_columns else None
+
+    def _system_at(self, blocks, held: np.ndarray, n: int, refactor: bool):
+        """``(g, terms, made_here)`` for a step at ``blocks``: on the held factor with its low-rank terms
+        unless ``refactor`` or it cannot serve (:meth:`_held_terms`), else on a fresh factorisation
+        (``made_here``); ``g`` None when H is not positive definite."""
+        if not refactor:
+            terms = self._held_terms(blocks, n)
+            if terms is not None:
+                return self._system(blocks, n, False)[1], terms, False
+        g = self._fresh(blocks, held, n)
+        return g, None if g is None else self._low_rank(blocks, n), True
+
+    def _fresh(self, blocks, held: np.ndarray, n: int, weighted: bool = True) -> np.ndarray | None:
         """H assembled and factorised at ``blocks``; the gradient ``g`` ``(D,)``, or None when H is not
         positive definite. H without left-out edges may be singular (a vertex joined only by them):
         then every edge goes in the pattern (a new analysis) and the factorisation is tried again."""
         for attempt in range(2):
             data, g = self._system(blocks, n, True)
             try:
-                self._factorize(data, blocks)
+                self._factorize(data, n, weighted)
             except NotPositiveDefiniteError:
                 if attempt or not self.left_out.shape[0]:
                     return None
@@ -267,9 +308,8 @@ class WholeGraph:
         return None
 
     def _solve_full(self, rhs: np.ndarray) -> np.ndarray:
-        """``H⁻¹ rhs`` ``(D,)`` or ``(D, r)`` for the H of the last :meth:`_factorize`, left-out blocks included."""
-        x = self.factor.solve(rhs)
-        return x if self.correction is None else self.correction.apply(x)
+        """``H̃⁻¹ rhs`` ``(D,)`` or ``(D, r)``: the held factor with the low-rank terms it last solved with."""
+        return self.held_factor.solve(rhs)
 
     def _system(self, blocks, n: int, hessian: bool):
         """``(data (nnz,) or None, g (D,))`` of the whole graph from the per-edge ``blocks``; the rows of
@@ -315,45 +355,44 @@ class WholeGraph:
         evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
         self.last.clear()
         self.current, self.decrement = None, np.inf
-        fresh, previous = True, np.inf
+        refactor, previous = False, np.inf
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
                 blocks = objective.linearize(poses, evaluation)
-            if fresh:
-                g = self._fresh(blocks, held, n)
-                if g is None:
-                    poses[:] = saved
-                    return False, iteration, np.zeros(0)
-            else:
-                _, g = self._system(blocks, n, False)
-            step = -self._solve_full(g)
-            decrement = -0.5 * float(g @ step)
+            g, terms, made_here = self._system_at(blocks, held, n, refactor)
+            if g is None:
+                poses[:] = saved
+                return False, iteration, np.zeros(0)
+            half = self.held_factor.forward(g, terms)
+            decrement = half.decrement
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.decrement = decrement
                 self.last.keep(poses, evaluation, blocks)
-                self._end_factored(fresh, blocks, held, n)
+                self._end_factored(made_here, blocks, held, n)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
-            if not fresh and not self._chord_pays():
-                fresh = True  # chord steps keep raising the cost here: refactorise at this point instead
+            if not made_here and not self._chord_pays():
+                refactor = True  # held steps keep raising the cost here: refactorise at this point instead
                 continue
+            step = -self.held_factor.backward(half)
+            self.held_steps += not made_here
             before = poses.copy()
             poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
             trial = objective.evaluate(poses) if decrement > 0 else None
             if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
                 poses[:] = before
-                if not fresh:
+                if not made_here:
                     self._chord_outcome(False)
-                    fresh = True  # the chord step failed: refactorise at this point (its blocks as they are)
+                    refactor = True  # the held step failed: refactorise at this point (its blocks as they are)
                     continue
                 trial = self._backtrack(objective, before, step, n, evaluation.cost)
                 if trial is None:
                     poses[:] = saved
                     return False, iteration, np.zeros(0)
-                previous, evaluation, blocks = np.inf, trial, None  # far from the optimum still: refactorise next
+                refactor, previous, evaluation, blocks = True, np.inf, trial, None  # far from the optimum still
                 continue
-            if not fresh:
+            if not made_here:
                 self._chord_outcome(True)
-            fresh = not fresh and decrement > CHORD_RATE * previous
+            refactor = not made_here and decrement > CHORD_RATE * previous
             previous, evaluation, blocks = decrement, trial, None
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
@@ -370,6 +409,7 @@ class WholeGraph:
         if not wanted or self.loss is not None:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
+            self.held_factor.terms = self._low_rank(blocks, n)  # the left-out edges at these poses
             self.current = (self.factorizations, n)
 
     def _chord_pays(self) -> bool:
@@ -414,5 +454,7 @@ class WholeGraph:
         else:
             objective = Objective(objective.graph, None)
             blocks = objective.linearize(poses, objective.evaluate(poses))
-        if self._fresh(blocks, held, self.store.num_vertices) is None:
+        n = self.store.num_vertices
+        if self._fresh(blocks, held, n, weighted=self.loss is None) is None:
             raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")
+        self.held_factor.terms = self._low_rank(blocks, n)  # the left-out edges, unweighted

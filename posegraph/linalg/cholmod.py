@@ -254,11 +254,12 @@ class SparseCholesky:
             raise ValueError(f"rhs must have shape ({self.n},) or ({self.n}, k), got {rhs.shape}")
         return self._apply(rhs, 0)
 
-    def unit_forward(self, columns) -> np.ndarray:
+    def unit_forward(self, columns, with_rows: bool = False):
         """``Y`` ``(r, c)`` with ``Eᵀ A⁻¹ E = YᵀY`` for the unit columns ``E`` ``(n, c)`` at unknowns ``columns``:
         the rows of ``L⁻¹ P E`` on the elimination-tree paths of ``columns``
         (:class:`posegraph.linalg.supernodal.SupernodalPaths`); where the factor cannot be read, all
-        ``n`` rows by cvxopt's dense solves (``sys=7``: ``P b``, then ``sys=4``: ``L⁻¹ b``)."""
+        ``n`` rows by cvxopt's dense solves (``sys=7``: ``P b``, then ``sys=4``: ``L⁻¹ b``). ``with_rows``:
+        ``(rows (r,), Y)`` with the position of each row of ``Y`` in ``L⁻¹ P E`` (ascending)."""
         from posegraph.linalg.supernodal import SupernodalPaths
 
         self._check_factorized()
@@ -266,10 +267,22 @@ class SparseCholesky:
         if self._paths is None:
             self._paths = SupernodalPaths.read(self._symbolic, self.n) or False
         if self._paths:
-            return self._paths.forward(columns)
-        unit = np.zeros((self.n, columns.shape[0]))
-        unit[columns, np.arange(columns.shape[0])] = 1.0
-        return self._apply(self._apply(unit, 7), 4)
+            rows, y = self._paths.forward_rows(columns)
+        else:
+            unit = np.zeros((self.n, columns.shape[0]))
+            unit[columns, np.arange(columns.shape[0])] = 1.0
+            rows, y = np.arange(self.n), self.forward(unit)
+        return (rows, y) if with_rows else y
+
+    def forward(self, rhs: np.ndarray) -> np.ndarray:
+        """``L⁻¹ P rhs`` ``(n,)`` or ``(n, k)``: the first half of :meth:`solve` (``solve = backward ∘ forward``)."""
+        self._check_factorized()
+        return self._apply(self._apply(np.asarray(rhs, dtype=np.float64), 7), 4)
+
+    def backward(self, rhs: np.ndarray) -> np.ndarray:
+        """``Pᵀ L⁻ᵀ rhs`` ``(n,)`` or ``(n, k)``: the second half of :meth:`solve`."""
+        self._check_factorized()
+        return self._apply(self._apply(np.asarray(rhs, dtype=np.float64), 5), 8)
 
     def _apply(self, rhs: np.ndarray, system: int) -> np.ndarray:
         """cvxopt's ``solve(F, B, sys=system)`` on a copy of ``rhs`` ``(n,)`` or ``(n, k)``."""

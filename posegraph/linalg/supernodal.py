@@ -121,6 +121,11 @@ class SupernodalPaths:
     def forward(self, columns) -> np.ndarray:
         """``Y`` ``(r, c)``: the nonzero rows of ``L⁻¹ P E`` for the unit columns ``E`` at unknowns ``columns``
         ``(c,)`` (rows of the elimination-tree paths, in elimination order), so that ``Eᵀ A⁻¹ E = YᵀY``."""
+        return self.forward_rows(columns)[1]
+
+    def forward_rows(self, columns) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows (r,), Y (r, c))``: :meth:`forward` with the row of ``L⁻¹ P E`` each row of ``Y`` is
+        (ascending positions in the elimination order, i.e. of the permuted system ``P A Pᵀ``)."""
         starts = self.inverse[np.asarray(columns, dtype=np.int64)]
         nodes = self._nodes(self.node_of[starts])
         first, widths = self.super[nodes], np.diff(self.super)[nodes]
@@ -135,7 +140,7 @@ class SupernodalPaths:
                 self._eliminate(node, offset, width, y, where)
         finally:
             where[rows] = -1
-        return y
+        return rows, y
 
     def _eliminate(self, node: int, offset: int, width: int, y: np.ndarray, where: np.ndarray) -> None:
         """One supernode of the forward solve: ``y_k ← L_kk⁻¹ y_k``, then ``y_below −= L_below y_k``
