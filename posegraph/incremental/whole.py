@@ -92,6 +92,13 @@ MAX_COLUMNS = 240
 left-out edges) past which a step refactorises instead: each held step costs products of size
 ``|R| × q`` and a ``q × q`` solve, which grow past one factorisation's cost (measured, docs/incremental.md)."""
 
+RELINEARISE = 8
+"""Old edges (in the held factor) re-linearised at each held step as low-rank pairs (+new, −old blocks):
+those whose residual moved most since the factorisation."""
+
+DRIFT = 1e-3
+"""Residual change ``‖Δe‖`` below which an old edge is not worth re-linearising."""
+
 
 def _off_keys(pattern) -> tuple[np.ndarray, np.ndarray]:
     """``(keys, first)``: sorted ``col·p + row`` of the stored off-diagonal blocks (``(k,)``) and, per
@@ -164,6 +171,7 @@ class WholeGraph:
     """Edges left out of H (low-rank correction) before an analysis (0: every missing block re-analyses)."""
 
     max_columns = MAX_COLUMNS
+    relinearise = RELINEARISE
     """Columns of low-rank terms the held factor takes before a step refactorises (0: every step does)."""
 
     def __init__(self, store, loss=None):
@@ -246,12 +254,12 @@ class WholeGraph:
         order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
         return block_permutation(order, pattern.block_size)
 
-    def _factorize(self, data: np.ndarray, n: int, weighted: bool) -> None:
+    def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
         """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
         (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
         self.held_factor = None
         self.factor.factorize(data)
-        self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted)
+        self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
 
     def _prior_count(self) -> int:
         priors = self.store.priors()
@@ -260,14 +268,32 @@ class WholeGraph:
     def _low_rank(self, blocks, n: int) -> LowRankTerms:
         """The terms ``H − H0`` of the held factor at the linearisation ``blocks``: the Hessian blocks of
         the edges added since it was made and of the left-out edges, minus the unit diagonal of the
-        vertices added since (decoupled in ``H0``)."""
+        vertices added since (decoupled in ``H0``), and the change of the RELINEARISE old edges whose
+        residual moved most since (:meth:`_drifted`)."""
         held, store = self.held_factor, self.store
         extra = np.union1d(self.left_out, np.arange(held.edges, store.num_edges))
         variable = self.pattern.variable_of
-        ci, cj = variable[store.edge_from.view[extra]], variable[store.edge_to.view[extra]]
+        ends = lambda e: (variable[store.edge_from.view[e]], variable[store.edge_to.view[e]])  # noqa: E731
+        parts = [(*blocks.hessian_slice(extra), *ends(extra))]
+        old = self._drifted(blocks)
+        if old.shape[0]:
+            parts.append((*blocks.hessian_slice(old), *ends(old)))
+            parts.append((*(-h for h in held.blocks.hessian_slice(old)), *ends(old)))
         new = variable[held.vertices : n]
         self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
-        return edge_terms(blocks, extra, ci, cj, self.pattern.block_size, new[new >= 0])
+        return edge_terms(parts, self.pattern.block_size, new[new >= 0])
+
+    def _drifted(self, blocks) -> np.ndarray:
+        """Up to ``relinearise`` edges in H0 (store order) whose residual moved most since it was made
+        (by ``‖Δe‖``, at least DRIFT): their blocks are replaced by the current ones as low-rank terms."""
+        held = self.held_factor
+        if not self.relinearise or held.blocks is None or held.edges == 0:
+            return np.zeros(0, dtype=np.int64)
+        moved = np.linalg.norm(blocks.residuals[: held.edges] - held.blocks.residuals[: held.edges], axis=1)
+        moved[self.left_out[self.left_out < held.edges]] = 0.0
+        count = min(self.relinearise, held.edges)
+        top = np.argpartition(moved, -count)[-count:]
+        return np.sort(top[moved[top] > DRIFT])
 
     def _held_terms(self, blocks, n: int) -> LowRankTerms | None:
         """The low-rank terms when the held factor can take this step; None when a refactorisation is
@@ -297,7 +323,7 @@ class WholeGraph:
         for attempt in range(2):
             data, g = self._system(blocks, n, True)
             try:
-                self._factorize(data, n, weighted)
+                self._factorize(data, n, weighted, blocks)
             except NotPositiveDefiniteError:
                 if attempt or not self.left_out.shape[0]:
                     return None

@@ -57,7 +57,7 @@ def test_held_factor_with_low_rank_terms_solves_the_full_system(loss):
     factor = SparseCholesky(matrix.indptr, matrix.indices, 9 * d)
     factor.factorize(matrix.data)
     extra, unit = np.array([2, 5, 9, 13]), np.array([4])
-    terms = edge_terms(blocks, extra, graph.edge_from[extra], graph.edge_to[extra], d, unit)
+    terms = edge_terms([(*blocks.hessian_slice(extra), graph.edge_from[extra], graph.edge_to[extra])], d, unit)
     e = np.zeros((9 * d, terms.columns.shape[0]))
     e[terms.columns, np.arange(terms.columns.shape[0])] = 1.0
     full = h0 + e @ terms.matrix @ e.T
