@@ -160,6 +160,16 @@ def _predicted(edge_from: np.ndarray, edge_to: np.ndarray, n: int, capacity: int
     return np.concatenate([chain, a[keep]]), np.concatenate([chain + 1, b[keep]])
 
 
+def _prior_changes(blocks, then, variable: np.ndarray) -> list:
+    """The priors' ``H(now) − H(then)`` as parts of :func:`~posegraph.incremental.held_factor.edge_terms`
+    (a prior is a diagonal block on its vertex: ``H_ii`` alone); none without priors or a kept linearisation."""
+    if blocks.priors is None or then is None or then.priors is None:
+        return []
+    column = variable[blocks.priors.vertex]
+    zeros, alone = np.zeros_like(blocks.priors.hessian), np.full(column.shape, -1)
+    return [(blocks.priors.hessian, zeros, zeros, column, alone), (-then.priors.hessian, zeros, zeros, column, alone)]
+
+
 class WholeGraph:
     """The held analysis of the whole graph's normal equations and Gauss-Newton on it (module docstring).
 
@@ -268,8 +278,8 @@ class WholeGraph:
     def _low_rank(self, blocks, n: int) -> LowRankTerms:
         """The terms ``H − H0`` of the held factor at the linearisation ``blocks``: the Hessian blocks of
         the edges added since it was made and of the left-out edges, minus the unit diagonal of the
-        vertices added since (decoupled in ``H0``), and the change of the RELINEARISE old edges whose
-        residual moved most since (:meth:`_drifted`)."""
+        vertices added since (decoupled in ``H0``), the change of the RELINEARISE old edges whose
+        residual moved most since (:meth:`_drifted`) and of every prior (few; their blocks move with the pose)."""
         held, store = self.held_factor, self.store
         extra = np.union1d(self.left_out, np.arange(held.edges, store.num_edges))
         variable = self.pattern.variable_of
@@ -279,6 +289,7 @@ class WholeGraph:
         if old.shape[0]:
             parts.append((*blocks.hessian_slice(old), *ends(old)))
             parts.append((*(-h for h in held.blocks.hessian_slice(old)), *ends(old)))
+        parts += _prior_changes(blocks, held.blocks, variable)
         new = variable[held.vertices : n]
         self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
         return edge_terms(parts, self.pattern.block_size, new[new >= 0])
