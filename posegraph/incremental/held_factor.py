@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from posegraph.linalg.native_threads import single_threaded_numpy_blas
+
 __all__ = ["HeldFactor", "LowRankTerms", "ForwardHalf", "edge_terms"]
 
 
@@ -115,6 +117,16 @@ class HeldFactor:
             self.slot[new] = c + np.arange(new.shape[0])
         return self.slot[columns]
 
+    def affordable(self, count: int, share: float) -> bool:
+        """Whether a step with ``count`` columns of terms costs less than ``share`` of one numeric
+        factorisation, in floating-point operations: ``3 q³`` for the ``q × q`` system (``G M`` and its
+        LU) and ``4 |R| q`` for the products with ``Y``, against the factor's
+        (:attr:`posegraph.linalg.supernodal.SupernodalPaths.flops`); True when the factor cannot be read."""
+        paths = self.factor._paths
+        if not paths:
+            return True
+        return 3.0 * count**3 + 4.0 * self.rows.shape[0] * count <= share * paths.flops
+
     def _small_solve(self, terms: LowRankTerms, slots: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """``M (I + G_KK M)⁻¹ rhs`` ``(q,)`` or ``(q, r)``."""
         m = terms.matrix
@@ -127,11 +139,13 @@ class HeldFactor:
         y = self.factor.forward(g)
         if terms.columns.shape[0] == 0:
             return ForwardHalf(y, 0.5 * float(y @ y))
-        slots = self._extend(terms.columns)
-        t = self.paths[:, slots].T @ y[self.rows]
-        q = self._small_solve(terms, slots, t)
-        z = y.copy()
-        z[self.rows] -= self.paths[:, slots] @ q
+        with single_threaded_numpy_blas():  # products of a few hundred columns: threads only contend
+            slots = self._extend(terms.columns)
+            part = self.paths[:, slots]
+            t = part.T @ y[self.rows]
+            q = self._small_solve(terms, slots, t)
+            z = y.copy()
+            z[self.rows] -= part @ q
         return ForwardHalf(z, 0.5 * (float(y @ y) - float(t @ q)))
 
     def backward(self, half: ForwardHalf) -> np.ndarray:
@@ -143,19 +157,21 @@ class HeldFactor:
         terms = self.terms if terms is None else terms
         y = self.factor.forward(rhs)
         if terms.columns.shape[0]:
-            slots = self._extend(terms.columns)
-            part = self.paths[:, slots]
-            y[self.rows] -= part @ self._small_solve(terms, slots, part.T @ y[self.rows])
+            with single_threaded_numpy_blas():
+                slots = self._extend(terms.columns)
+                part = self.paths[:, slots]
+                y[self.rows] -= part @ self._small_solve(terms, slots, part.T @ y[self.rows])
         return self.factor.backward(y)
 
     def inverse_block(self, columns: np.ndarray) -> np.ndarray:
         """``E_Cᵀ H̃⁻¹ E_C`` ``(c, c)`` for scalar columns ``columns`` ``(c,)``, on the last terms:
         ``G_CC − G_CK M (I + G_KK M)⁻¹ G_KC`` (path solves only)."""
         terms = self.terms
-        asked = self._extend(np.asarray(columns, dtype=np.int64))
-        block = self.gram[np.ix_(asked, asked)].copy()
-        if terms.columns.shape[0]:
-            slots = self._extend(terms.columns)
-            cross = self.gram[np.ix_(slots, asked)]
-            block -= cross.T @ self._small_solve(terms, slots, cross)
+        with single_threaded_numpy_blas():
+            asked = self._extend(np.asarray(columns, dtype=np.int64))
+            block = self.gram[np.ix_(asked, asked)].copy()
+            if terms.columns.shape[0]:
+                slots = self._extend(terms.columns)
+                cross = self.gram[np.ix_(slots, asked)]
+                block -= cross.T @ self._small_solve(terms, slots, cross)
         return 0.5 * (block + block.T)

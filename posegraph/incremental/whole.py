@@ -92,6 +92,10 @@ MAX_COLUMNS = 240
 left-out edges) past which a step refactorises instead: each held step costs products of size
 ``|R| × q`` and a ``q × q`` solve, which grow past one factorisation's cost (measured, docs/incremental.md)."""
 
+BREAK_EVEN = 0.5
+"""A held step's dense work (the ``q × q`` system of its terms, the path products) at most this share of
+one numeric factorisation's floating-point operations; past it the step refactorises."""
+
 RELINEARISE = 8
 """Old edges (in the held factor) re-linearised at each held step as low-rank pairs (+new, −old blocks):
 those whose residual moved most since the factorisation."""
@@ -308,13 +312,14 @@ class WholeGraph:
 
     def _held_terms(self, blocks, n: int) -> LowRankTerms | None:
         """The low-rank terms when the held factor can take this step; None when a refactorisation is
-        due: no factor, priors added since, a factor without the loss weights a loss needs, or more than
-        ``max_columns`` columns of terms (past the break-even against one factorisation)."""
+        due: no factor, priors added since, a factor without the loss weights a loss needs, more than
+        ``max_columns`` columns of terms, or terms whose dense work passes BREAK_EVEN of a factorisation's."""
         held = self.held_factor
         if held is None or held.priors != self._prior_count() or (self.loss is not None and not held.weighted):
             return None
         terms = self._low_rank(blocks, n)
-        return terms if terms.columns.shape[0] <= self.max_columns else None
+        count = terms.columns.shape[0]
+        return terms if count <= self.max_columns and held.affordable(count, BREAK_EVEN) else None
 
     def _system_at(self, blocks, held: np.ndarray, n: int, refactor: bool):
         """``(g, terms, made_here)`` for a step at ``blocks``: on the held factor with its low-rank terms

@@ -109,6 +109,14 @@ class SupernodalPaths:
             return None  # not postordered: the forward solve visits supernodes in index order
         return paths
 
+    @property
+    def flops(self) -> float:
+        """Floating-point operations of the numeric factorisation of this pattern: per supernode of
+        ``w`` columns and ``h`` rows, ``w³/3`` (its diagonal block) ``+ (h−w)w²`` (the rows below)
+        ``+ (h−w)²w`` (its update of the ancestors), i.e. ``w h² − (2/3) w³``."""
+        w, h = np.diff(self.super).astype(float), np.diff(self.pi).astype(float)
+        return float(np.sum(w * h * h - 2.0 / 3.0 * w**3))
+
     def _nodes(self, starts: np.ndarray) -> np.ndarray:
         """Sorted supernodes on the paths from ``starts`` to the roots (a parent's index exceeds its child's)."""
         seen: set[int] = set()
