@@ -18,9 +18,10 @@ it pays:
   graph at the last change).
 * **Base poses use the held analysis** (:mod:`posegraph.incremental.whole`): one numeric factorisation
   at the current poses per change (the last solve's linearisation reused when it is of these poses),
-  then for unknowns ``E`` (the ``d`` rows of each pose asked) ``Eᵀ H⁻¹ E = YᵀY − Z_E C⁻¹ Z_Eᵀ``,
-  ``Y = L⁻¹ P E`` on the elimination-tree paths only (:meth:`SparseCholesky.unit_forward`), the second
-  term the left-out edges' Woodbury correction (:mod:`posegraph.incremental.lowrank`, ``Z = A⁻¹U``).
+  then for unknowns ``E`` (the ``d`` rows of each pose asked) ``Eᵀ H⁻¹ E = G_EE − G_EK M (I + G_KK M)⁻¹ G_KE``,
+  ``G = YᵀY``, ``Y = L⁻¹ P [E, E_K]`` on the elimination-tree paths only (:meth:`SparseCholesky.unit_forward`),
+  the second term the left-out edges' blocks ``M`` on their columns ``K``
+  (:meth:`posegraph.incremental.held_factor.HeldFactor.inverse_block`).
 * **Everything is cached** until an update that is not pure odometry (a solve, a removal, a prior, a
   landmark, :meth:`IncrementalOptimizer.optimize`) drops it.
 """

@@ -12,22 +12,29 @@ what does not change between updates is kept:
   would add next (``(lo + t, hi + s)``, ``1 ≤ s ≤ PREDICT``, ``−s−2 ≤ t ≤ 3s+2``: the older end may
   advance at another pace, or back). A new edge whose block is in the pattern costs only its
   scatter positions. Up to MAX_LEFT_OUT edges whose block is missing are left out of the factorised
-  matrix and added back exactly by a low-rank (Woodbury) correction (:mod:`posegraph.incremental.lowrank`);
+  matrix and added back exactly as low-rank terms of the held factor (below);
   the analysis is redone when more are missing, the capacity is exceeded, the held set (FIX, anchors)
   changed, or H without the left-out edges is singular — amortised over many updates. It orders the
   vertex graph (AMD on p nodes), expanded to the blocks.
-* **The factor (chord steps).** After a step on a fresh factorisation, the next steps reuse it with
-  the exact gradient at the new point (``δ = −H_old⁻¹ g``): the Hessian blocks and the numeric
-  factorisation are skipped while the Newton decrement falls by at least ×4 per step; else the next
-  step refactorises. The stopping test is the decrement ``½ gᵀH⁻¹g ≤ tolerance · cost`` at the current
-  point (the excess over the optimum, to second order), so accuracy rests on the exact gradient.
+* **The factor, held (:mod:`posegraph.incremental.held_factor`).** The last numeric factorisation
+  ``H0`` (made at an earlier point, over the edges then present) is kept across steps *and updates*;
+  a step solves ``H̃ = H0 + E_K M E_Kᵀ`` with the exact gradient, ``M`` re-linearised at the current
+  point at every step: the Hessian blocks of the edges added since ``H0`` and of the left-out edges,
+  minus the unit diagonal ``H0`` gave the vertices added since, plus ``H(now) − H(then)`` of the
+  RELINEARISE old edges whose residual moved most and of every prior. The Newton decrement
+  ``½ gᵀH̃⁻¹g`` comes from the forward half of the solve (the stopping test runs before the backward
+  solve). A step refactorises at the current point instead when the held one raised the cost, the last
+  held step cut the decrement by less than ×4 (CHORD_RATE), the terms pass ``max_columns`` or BREAK_EVEN
+  of a factorisation's work, priors were added, a new analysis was made, or held steps kept failing
+  (CHORD_ODDS). The stopping test is ``½ gᵀH̃⁻¹g ≤ tolerance · cost`` at the current point (the excess
+  over the optimum, to second order), so accuracy rests on the exact gradient.
 * **The last linearisation.** A solve ends linearised at its final point; the next one starts from
   that evaluation and linearisation with only the new edges computed (:mod:`posegraph.incremental.reuse`),
   as long as no old pose moved in between (odometry is placed by composition) and there are no priors.
 
 Each step's cost is the exact one (:class:`posegraph.solve.objective.Objective`, losses and priors
-included); a step that raises it restores the poses (after a chord step: a refactorised step is tried;
-after a fresh one: :meth:`WholeGraph.solve` returns False and the caller runs the damped batch solver).
+included); a step that raises it restores the poses (after a held step: a refactorised step is tried;
+after one on a factor made at that point: :meth:`WholeGraph.solve` returns False and the caller runs the damped batch solver).
 """
 
 from __future__ import annotations
@@ -68,24 +75,21 @@ BACKTRACK = 6
 """Halvings of an overshooting fresh step tried before the damped batch solver takes over."""
 
 CHORD_RATE = 0.25
-"""A chord step must cut the Newton decrement at least this much, else the next step refactorises."""
+"""A held step must cut the Newton decrement at least this much, else the next step refactorises."""
 
 CHORD_ODDS = 0.3
-"""A chord step is taken only while at least this share of the recent ones (a moving average, weight
-1/8 to the last) lowered the cost; otherwise the next step refactorises at once. On intel most chord
-steps are accepted; on manhattan and parking-garage ~90 % raise the cost (measured; presumably their
-loop closures' large first steps turn the tangent frames the old factor was made in), and each
-rejected one costs an evaluation of the whole graph for nothing. The Newton decrement is still
-computed on the old factor first (the stopping test). Every PROBE-th chance a chord step is tried."""
+"""A held (chord) step, on a factor made at another point, is taken only while at least this share of
+the recent ones (a moving average, weight 1/8 to the last) lowered the cost; otherwise the next step
+refactorises at once: each rejected one costs an evaluation of the whole graph for nothing. The Newton
+decrement is still computed on the held factor first (the stopping test). Every PROBE-th chance a held
+step is tried."""
 
 PROBE = 16
-"""Every this many chances a chord step is tried whatever the odds, so that the odds can recover."""
+"""Every this many chances a held step is tried whatever the odds, so that the odds can recover."""
 
 MAX_LEFT_OUT = 2
 """Edges whose block is outside the held pattern that are left out of the factorised matrix and put
-back by a low-rank correction (:mod:`posegraph.incremental.lowrank`) before a new analysis is made. The
-correction costs d solves per left-out edge at every numeric factorisation (cvxopt's CHOLMOD solves
-one right-hand side at a time), so only a few are worth it against one analysis."""
+back as low-rank terms (:mod:`posegraph.incremental.held_factor`) before a new analysis is made."""
 
 MAX_COLUMNS = 240
 """Scalar columns of low-rank terms (edges and vertices added since the last numeric factorisation,
@@ -182,7 +186,7 @@ class WholeGraph:
     """
 
     max_left_out = MAX_LEFT_OUT
-    """Edges left out of H (low-rank correction) before an analysis (0: every missing block re-analyses)."""
+    """Edges left out of H (low-rank terms) before an analysis (0: every missing block re-analyses)."""
 
     max_columns = MAX_COLUMNS
     relinearise = RELINEARISE
@@ -202,7 +206,7 @@ class WholeGraph:
         self.covariance_wanted = False  # a covariance was asked since the last solve (set by the optimiser)
         self.current: tuple[int, int] | None = None  # (factorisations, vertices) of a factor at the solve's end
         self.analyses = self.factorizations = self.corrections = self.chord_chances = self.held_steps = 0
-        self.chord_odds = 1.0  # moving share of chord steps that lowered the cost
+        self.chord_odds = 1.0  # moving share of held steps that lowered the cost
         self.decrement = np.inf  # ½ gᵀH⁻¹g at the end of the last solve that met its tolerance
 
     def reset(self) -> None:
@@ -215,7 +219,7 @@ class WholeGraph:
     def _ready(self, held: np.ndarray) -> bool:
         """Scatter positions for every edge; False when the analysis no longer covers the graph: the
         capacity or the held set changed, or more than MAX_LEFT_OUT edges would have their block outside
-        the pattern (those are left out of H: :mod:`~posegraph.incremental.lowrank`)."""
+        the pattern (those are left out of H: low-rank terms, :mod:`~posegraph.incremental.held_factor`)."""
         store, n = self.store, self.store.num_vertices
         if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
             return False
@@ -228,7 +232,7 @@ class WholeGraph:
             if left_out.shape[0] > self.max_left_out:
                 return False
             self.left_out = left_out
-            hessian[~found] = self.pattern.nnz  # left out of H entirely: the correction adds them back
+            hessian[~found] = self.pattern.nnz  # left out of H entirely: low-rank terms add them back
             self.hessian_at.extend(hessian)
             self.gradient_at.extend(gradient)
         return True
@@ -443,7 +447,7 @@ class WholeGraph:
     def _end_factored(self, fresh: bool, blocks, held: np.ndarray, n: int) -> None:
         """When a covariance was asked since the last solve (``covariance_wanted``: a front end asking
         after every update) and without a loss, a solve ends holding a factor of H at its final poses
-        (refactorised there after a chord step), marked in ``current``: the covariances after the update
+        (refactorised there after a held step), marked in ``current``: the covariances after the update
         are then forward solves on it (:mod:`posegraph.incremental.covariance`), and the factorisation
         they need is made here, where the linearisation at those poses is at hand. With a loss, the
         solve's H carries IRLS weights that the covariance convention leaves out."""
@@ -455,7 +459,7 @@ class WholeGraph:
             self.current = (self.factorizations, n)
 
     def _chord_pays(self) -> bool:
-        """Whether to try the chord step now (CHORD_ODDS, PROBE)."""
+        """Whether to try the held step now (CHORD_ODDS, PROBE)."""
         self.chord_chances += 1
         return self.chord_odds >= CHORD_ODDS or self.chord_chances % PROBE == 0
 
