@@ -23,8 +23,9 @@ what does not change between updates is kept:
   minus the unit diagonal ``H0`` gave the vertices added since, plus ``H(now) − H(then)`` of the
   RELINEARISE old edges whose residual moved most and of every prior. The Newton decrement
   ``½ gᵀH̃⁻¹g`` comes from the forward half of the solve (the stopping test runs before the backward
-  solve). A step refactorises at the current point instead when the held one raised the cost, the last
-  held step cut the decrement by less than ×4 (CHORD_RATE), the terms pass ``max_columns`` or BREAK_EVEN
+  solve). A step refactorises at the current point instead when the held one raised the cost, the
+  decrement at this point is not ×4 (CHORD_RATE) below the last step's (the held system is off here:
+  refactorised before the step is spent), the terms pass ``max_columns`` or BREAK_EVEN
   of a factorisation's work, priors were added, a new analysis was made, or held steps kept failing
   (CHORD_ODDS). The stopping test is ``½ gᵀH̃⁻¹g ≤ tolerance · cost`` at the current point (the excess
   over the optimum, to second order), so accuracy rests on the exact gradient.
@@ -75,7 +76,8 @@ BACKTRACK = 6
 """Halvings of an overshooting fresh step tried before the damped batch solver takes over."""
 
 CHORD_RATE = 0.25
-"""A held step must cut the Newton decrement at least this much, else the next step refactorises."""
+"""The Newton decrement on the held factor must be at most this share of the last step's, else the step
+refactorises at once (the held system is off at this point)."""
 
 CHORD_ODDS = 0.3
 """A held (chord) step, on a factor made at another point, is taken only while at least this share of
@@ -416,8 +418,8 @@ class WholeGraph:
                 self.last.keep(poses, evaluation, blocks)
                 self._end_factored(made_here, blocks, held, n)
                 break  # the current point is within tolerance of the optimum: no step, no evaluation
-            if not made_here and not self._chord_pays():
-                refactor = True  # held steps keep raising the cost here: refactorise at this point instead
+            if not made_here and (decrement > CHORD_RATE * previous or not self._chord_pays()):
+                refactor = True  # the held system is off here, or its steps keep failing: refactorise at this point
                 continue
             step = -self.held_factor.backward(half)
             self.held_steps += not made_here
@@ -438,8 +440,7 @@ class WholeGraph:
                 continue
             if not made_here:
                 self._chord_outcome(True)
-            refactor = not made_here and decrement > CHORD_RATE * previous
-            previous, evaluation, blocks = decrement, trial, None
+            refactor, previous, evaluation, blocks = False, decrement, trial, None
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
         return True, iteration, self._terms(objective, evaluation)
