@@ -323,6 +323,8 @@ class WholeGraph:
         held = self.held_factor
         if held is None or held.priors != self._prior_count() or (self.loss is not None and not held.weighted):
             return None
+        if self.pattern.block_size * (n - held.vertices) > self.max_columns:
+            return None  # more columns than allowed for sure (a long odometry run): not worth building them
         terms = self._low_rank(blocks, n)
         count = terms.columns.shape[0]
         return terms if count <= self.max_columns and held.affordable(count, BREAK_EVEN) else None
