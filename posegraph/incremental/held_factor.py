@@ -95,6 +95,7 @@ class HeldFactor:
         self.paths = np.zeros((0, 0))  # Y (|R|, c)
         self.gram = np.zeros((0, 0))  # G = YᵀY (c, c)
         self.terms = LowRankTerms.empty()  # the last terms solved with (for the covariances)
+        self.flops: float | None = None  # of the numeric factorisation, read on first use
 
     def _extend(self, columns: np.ndarray) -> np.ndarray:
         """Make ``Y`` and ``G`` cover ``columns`` ``(q,)``; their slots ``(q,)``."""
@@ -121,11 +122,10 @@ class HeldFactor:
         """Whether a step with ``count`` columns of terms costs less than ``share`` of one numeric
         factorisation, in floating-point operations: ``3 q³`` for the ``q × q`` system (``G M`` and its
         LU) and ``4 |R| q`` for the products with ``Y``, against the factor's
-        (:attr:`posegraph.linalg.supernodal.SupernodalPaths.flops`); True when the factor cannot be read."""
-        paths = self.factor._paths
-        if not paths:
-            return True
-        return 3.0 * count**3 + 4.0 * self.rows.shape[0] * count <= share * paths.flops
+        (:attr:`~posegraph.linalg.cholmod.SparseCholesky.factor_flops`); True when the factor cannot be read."""
+        if self.flops is None:
+            self.flops = self.factor.factor_flops or np.inf
+        return 3.0 * count**3 + 4.0 * self.rows.shape[0] * count <= share * self.flops
 
     def _small_solve(self, terms: LowRankTerms, slots: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """``M (I + G_KK M)⁻¹ rhs`` ``(q,)`` or ``(q, r)``."""

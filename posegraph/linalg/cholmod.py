@@ -274,6 +274,17 @@ class SparseCholesky:
             rows, y = np.arange(self.n), self.forward(unit)
         return (rows, y) if with_rows else y
 
+    @property
+    def factor_flops(self) -> float | None:
+        """Floating-point operations of the last numeric factorisation, from its supernodes
+        (:attr:`posegraph.linalg.supernodal.SupernodalPaths.flops`); None where the factor cannot be read."""
+        from posegraph.linalg.supernodal import SupernodalPaths
+
+        self._check_factorized()
+        if self._paths is None:
+            self._paths = SupernodalPaths.read(self._symbolic, self.n) or False
+        return self._paths.flops if self._paths else None
+
     def forward(self, rhs: np.ndarray) -> np.ndarray:
         """``L⁻¹ P rhs`` ``(n,)`` or ``(n, k)``: the first half of :meth:`solve` (``solve = backward ∘ forward``)."""
         self._check_factorized()

@@ -58,3 +58,21 @@ def test_a_new_factorisation_is_read_again_and_other_layouts_are_refused():
     assert np.abs(y.T @ y - expected).max() <= 1e-12 * np.abs(expected).max()
     assert SupernodalPaths.read(factor._symbolic, 121) is None  # not this factor's size
     assert SupernodalPaths.read(object(), 120) is None
+
+
+def test_the_rows_of_a_path_solve_and_the_two_halves_of_a_solve():
+    """``unit_forward(…, with_rows=True)`` names the rows of ``L⁻¹ P E`` it returns (the dense forward
+    half is zero elsewhere); ``backward(forward(b)) = A⁻¹ b``; ``factor_flops`` is positive and at most
+    the dense Cholesky's ``n³/3``."""
+    a = _chain_with_loops(300, 1)
+    factor = _factor(a)
+    columns = [3, 150, 299]
+    rows, y = factor.unit_forward(columns, with_rows=True)
+    unit = np.zeros((300, 3))
+    unit[columns, np.arange(3)] = 1.0
+    dense = factor.forward(unit)
+    assert np.all(np.diff(rows) > 0) and rows.shape[0] < 300
+    assert np.abs(dense[rows] - y).max() <= 1e-13 and np.abs(np.delete(dense, rows, axis=0)).max() == 0.0
+    b = np.random.default_rng(1).normal(size=300)
+    assert np.abs(factor.backward(factor.forward(b)) - np.linalg.solve(a, b)).max() <= 1e-12 * np.abs(b).max()
+    assert 0 < factor.factor_flops <= 300**3 / 3
