@@ -45,6 +45,7 @@ import numpy as np
 
 from posegraph.model.graph import PoseGraph, held_vertices
 from posegraph.solve.clock import PhaseClock
+from posegraph.solve.gauge import central_anchors, moved_back
 from posegraph.solve.linear import NotPositiveDefiniteError, make_linear_solver
 from posegraph.solve.objective import Evaluation, Objective
 from posegraph.solve.params import SolverParams
@@ -158,7 +159,19 @@ def optimize(
     if analysis is not None and not analysis.matches(graph):
         raise ValueError("the analysis was made for other edges than the graph's")
     poses = _initial_poses(graph, initial)
-    run = _Run(graph, (poses, _initial_points(graph, initial, poses, initial_points)), params, analysis, hold, hold_points)
+    points = _initial_points(graph, initial, poses, initial_points)
+    # (a given analysis or hold was made for the conventional gauge: solved in it)
+    gauge = central_anchors(graph, poses) if analysis is None and hold is None and hold_points is None else None
+    if gauge is None:
+        return _optimize_from(graph, poses, points, params, analysis, hold, hold_points, start)
+    result = _optimize_from(gauge[0], poses, points, params, None, None, None, start)
+    moved, points = moved_back(graph, gauge[1], poses, result.poses, result.points)
+    return replace(result, poses=moved, points=points)
+
+
+def _optimize_from(graph: PoseGraph, poses, points, params: SolverParams, analysis, hold, hold_points, start: float) -> OptimizeResult:
+    """The iterations of :func:`optimize` from ``poses``, ``points`` in ``graph``'s gauge."""
+    run = _Run(graph, (poses, points), params, analysis, hold, hold_points)
     early = run.nothing_to_do()
     if early is not None:
         return run.result(early, [], start)
