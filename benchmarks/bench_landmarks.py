@@ -359,7 +359,7 @@ def pose_graph_check(rev: str, repeats: int, timeout: float, folder: Path = harn
 def pose_graph_markdown(check: dict) -> list[str]:
     """The before/after table."""
     rev = check["revision"]
-    lines = [f"## Pure pose graphs: this commit vs {rev} (before the landmark work)", "",
+    lines = [f"## Pure pose graphs: this commit vs {rev}", "",
              f"`python -m posegraph optimize FILE -o OUT -q`, cwd at each tree, 1 warm-up + {check['repeats']} alternating rounds, medians.", "",
              f"| file | current s | {rev} s | current / {rev} | all runs current | all runs {rev} |", "|---|---|---|---|---|---|"]  # fmt: skip
     for entry in check["files"]:
