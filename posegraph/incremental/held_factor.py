@@ -163,6 +163,12 @@ class HeldFactor:
                 y[self.rows] -= part @ self._small_solve(terms, slots, part.T @ y[self.rows])
         return self.factor.backward(y)
 
+    def cover(self, columns: np.ndarray) -> None:
+        """Make ``Y`` and ``G`` cover ``columns`` ``(q,)`` now: their path solves are then not paid by the
+        next :meth:`inverse_block` (a covariance asked right after an update)."""
+        with single_threaded_numpy_blas():
+            self._extend(np.asarray(columns, dtype=np.int64))
+
     def inverse_block(self, columns: np.ndarray) -> np.ndarray:
         """``E_Cᵀ H̃⁻¹ E_C`` ``(c, c)`` for scalar columns ``columns`` ``(c,)``, on the last terms:
         ``G_CC − G_CK M (I + G_KK M)⁻¹ G_KC`` (path solves only)."""

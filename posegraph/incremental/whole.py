@@ -459,6 +459,7 @@ class WholeGraph:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
             self.held_factor.terms = self._low_rank(blocks, n)  # the left-out edges at these poses
+            self.held_factor.cover(self.held_factor.terms.columns)  # their path solves here, not in the call
             self.current = (self.factorizations, n)
 
     def _chord_pays(self) -> bool:
