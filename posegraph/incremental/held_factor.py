@@ -133,12 +133,9 @@ class HeldFactor:
         system = np.eye(m.shape[0]) + self.gram[np.ix_(slots, slots)] @ m
         return m @ np.linalg.solve(system, rhs)
 
-    def forward(self, g: np.ndarray, terms: LowRankTerms) -> ForwardHalf:
-        """The forward half of ``H̃⁻¹ g`` for ``g`` ``(D,)`` and the decrement ``½ gᵀH̃⁻¹g``."""
-        self.terms = terms
-        y = self.factor.forward(g)
-        if terms.columns.shape[0] == 0:
-            return ForwardHalf(y, 0.5 * float(y @ y))
+    def _with_terms(self, y: np.ndarray, terms: LowRankTerms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(z, t, q)`` for ``y = L⁻¹ P g`` ``(D,)`` or ``(D, r)``: ``t = Y_Kᵀ y``, ``q = M (I + G M)⁻¹ t``,
+        ``z = y − Y_K q`` (a new array; module docstring)."""
         with single_threaded_numpy_blas():  # products of a few hundred columns: threads only contend
             slots = self._extend(terms.columns)
             part = self.paths[:, slots]
@@ -146,6 +143,15 @@ class HeldFactor:
             q = self._small_solve(terms, slots, t)
             z = y.copy()
             z[self.rows] -= part @ q
+        return z, t, q
+
+    def forward(self, g: np.ndarray, terms: LowRankTerms) -> ForwardHalf:
+        """The forward half of ``H̃⁻¹ g`` for ``g`` ``(D,)`` and the decrement ``½ gᵀH̃⁻¹g``."""
+        self.terms = terms
+        y = self.factor.forward(g)
+        if terms.columns.shape[0] == 0:
+            return ForwardHalf(y, 0.5 * float(y @ y))
+        z, t, q = self._with_terms(y, terms)
         return ForwardHalf(z, 0.5 * (float(y @ y) - float(t @ q)))
 
     def backward(self, half: ForwardHalf) -> np.ndarray:
@@ -157,10 +163,7 @@ class HeldFactor:
         terms = self.terms if terms is None else terms
         y = self.factor.forward(rhs)
         if terms.columns.shape[0]:
-            with single_threaded_numpy_blas():
-                slots = self._extend(terms.columns)
-                part = self.paths[:, slots]
-                y[self.rows] -= part @ self._small_solve(terms, slots, part.T @ y[self.rows])
+            y = self._with_terms(y, terms)[0]
         return self.factor.backward(y)
 
     def cover(self, columns: np.ndarray) -> None:

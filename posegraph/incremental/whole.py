@@ -191,8 +191,10 @@ class WholeGraph:
     """Edges left out of H (low-rank terms) before an analysis (0: every missing block re-analyses)."""
 
     max_columns = MAX_COLUMNS
-    relinearise = RELINEARISE
     """Columns of low-rank terms the held factor takes before a step refactorises (0: every step does)."""
+
+    relinearise = RELINEARISE
+    """Old edges re-linearised as low-rank pairs at each held step (0: none)."""
 
     def __init__(self, store, loss=None):
         from posegraph.incremental.store import Rows
@@ -338,12 +340,13 @@ class WholeGraph:
             if terms is not None:
                 return self._system(blocks, n, False)[1], terms, False
         g = self._fresh(blocks, held, n)
-        return g, None if g is None else self._low_rank(blocks, n), True
+        return g, None if g is None else self.held_factor.terms, True
 
     def _fresh(self, blocks, held: np.ndarray, n: int, weighted: bool = True) -> np.ndarray | None:
-        """H assembled and factorised at ``blocks``; the gradient ``g`` ``(D,)``, or None when H is not
-        positive definite. H without left-out edges may be singular (a vertex joined only by them):
-        then every edge goes in the pattern (a new analysis) and the factorisation is tried again."""
+        """H assembled and factorised at ``blocks``, held with its terms at ``blocks`` (the left-out
+        edges'); the gradient ``g`` ``(D,)``, or None when H is not positive definite. H without
+        left-out edges may be singular (a vertex joined only by them): then every edge goes in the
+        pattern (a new analysis) and the factorisation is tried again."""
         for attempt in range(2):
             data, g = self._system(blocks, n, True)
             try:
@@ -354,6 +357,7 @@ class WholeGraph:
                 self._analyse(held)
                 continue
             self.factorizations += 1
+            self.held_factor.terms = self._low_rank(blocks, n)
             return g
         return None
 
@@ -458,8 +462,7 @@ class WholeGraph:
         if not wanted or self.loss is not None:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
-            self.held_factor.terms = self._low_rank(blocks, n)  # the left-out edges at these poses
-            self.held_factor.cover(self.held_factor.terms.columns)  # their path solves here, not in the call
+            self.held_factor.cover(self.held_factor.terms.columns)  # the left-out edges' path solves here, not in the call
             self.current = (self.factorizations, n)
 
     def _chord_pays(self) -> bool:
@@ -507,4 +510,3 @@ class WholeGraph:
         n = self.store.num_vertices
         if self._fresh(blocks, held, n, weighted=self.loss is None) is None:
             raise NotPositiveDefiniteError("the Hessian at the estimate is not positive definite")
-        self.held_factor.terms = self._low_rank(blocks, n)  # the left-out edges, unweighted

@@ -260,14 +260,11 @@ class SparseCholesky:
         (:class:`posegraph.linalg.supernodal.SupernodalPaths`); where the factor cannot be read, all
         ``n`` rows by cvxopt's dense solves (``sys=7``: ``P b``, then ``sys=4``: ``L⁻¹ b``). ``with_rows``:
         ``(rows (r,), Y)`` with the position of each row of ``Y`` in ``L⁻¹ P E`` (ascending)."""
-        from posegraph.linalg.supernodal import SupernodalPaths
-
         self._check_factorized()
         columns = np.asarray(columns, dtype=np.int64)
-        if self._paths is None:
-            self._paths = SupernodalPaths.read(self._symbolic, self.n) or False
-        if self._paths:
-            rows, y = self._paths.forward_rows(columns)
+        paths = self._supernodal_paths()
+        if paths:
+            rows, y = paths.forward_rows(columns)
         else:
             unit = np.zeros((self.n, columns.shape[0]))
             unit[columns, np.arange(columns.shape[0])] = 1.0
@@ -278,12 +275,18 @@ class SparseCholesky:
     def factor_flops(self) -> float | None:
         """Floating-point operations of the last numeric factorisation, from its supernodes
         (:attr:`posegraph.linalg.supernodal.SupernodalPaths.flops`); None where the factor cannot be read."""
+        self._check_factorized()
+        paths = self._supernodal_paths()
+        return paths.flops if paths else None
+
+    def _supernodal_paths(self):
+        """The :class:`~posegraph.linalg.supernodal.SupernodalPaths` view of the last numeric factor, read
+        once per factorisation; False where it cannot be trusted (the callers then use dense solves)."""
         from posegraph.linalg.supernodal import SupernodalPaths
 
-        self._check_factorized()
         if self._paths is None:
             self._paths = SupernodalPaths.read(self._symbolic, self.n) or False
-        return self._paths.flops if self._paths else None
+        return self._paths
 
     def forward(self, rhs: np.ndarray) -> np.ndarray:
         """``L⁻¹ P rhs`` ``(n,)`` or ``(n, k)``: the first half of :meth:`solve` (``solve = backward ∘ forward``)."""
