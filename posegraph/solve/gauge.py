@@ -12,7 +12,7 @@ LM iterations and world-2000-lownoise-default 22 → 9, and no landmark file tri
 (``docs/landmarks.md``).
 
 So the solver holds :func:`central_anchors` instead, and :func:`moved_back` re-expresses its answer
-in the conventional gauge: per component ``T = X⁰_a · X_a⁻¹`` (``a`` the conventional anchor, ``X⁰`` the
+(and :func:`reported_moved_back` each estimate it reports on the way) in the conventional gauge: per component ``T = X⁰_a · X_a⁻¹`` (``a`` the conventional anchor, ``X⁰`` the
 start), poses ``T·X``, points ``T·p``, the anchor set to its start exactly. The cost and every
 residual are unchanged by ``T``.
 """
@@ -25,7 +25,7 @@ import numpy as np
 
 from posegraph.model.graph import PoseGraph, component_anchors, landmark_components
 
-__all__ = ["central_anchors", "moved_back"]
+__all__ = ["central_anchors", "moved_back", "reported_moved_back"]
 
 
 def central_anchors(graph: PoseGraph, poses: np.ndarray) -> tuple[PoseGraph, np.ndarray] | None:
@@ -71,3 +71,13 @@ def moved_back(graph: PoseGraph, anchors: np.ndarray, start: np.ndarray, poses: 
     motion = motions[component[np.where(seen, labels[n:], 0)]]
     placed = np.einsum("lij,lj->li", motion[:, :r, :r], points) + motion[:, :r, r]
     return moved, np.where(seen[:, None], placed, points)
+
+
+def reported_moved_back(callback, graph: PoseGraph, anchors: np.ndarray, start: np.ndarray):
+    """``callback(record, poses, points)`` (an ``estimate_callback``) given each estimate moved back as
+    :func:`moved_back` moves the answer, so that what it records is in the gauge of the output."""
+
+    def reported(record, poses, points):
+        callback(record, *moved_back(graph, anchors, start, poses, points))
+
+    return reported

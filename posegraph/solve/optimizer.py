@@ -45,7 +45,7 @@ import numpy as np
 
 from posegraph.model.graph import PoseGraph, held_vertices
 from posegraph.solve.clock import PhaseClock
-from posegraph.solve.gauge import central_anchors, moved_back
+from posegraph.solve.gauge import central_anchors, moved_back, reported_moved_back
 from posegraph.solve.linear import NotPositiveDefiniteError, make_linear_solver
 from posegraph.solve.objective import Evaluation, Objective
 from posegraph.solve.params import SolverParams
@@ -164,6 +164,8 @@ def optimize(
     gauge = central_anchors(graph, poses) if analysis is None and hold is None and hold_points is None else None
     if gauge is None:
         return _optimize_from(graph, poses, points, params, analysis, hold, hold_points, start)
+    if params.estimate_callback is not None:
+        params = replace(params, estimate_callback=reported_moved_back(params.estimate_callback, graph, gauge[1], poses))
     result = _optimize_from(gauge[0], poses, points, params, None, None, None, start)
     moved, points = moved_back(graph, gauge[1], poses, result.poses, result.points)
     return replace(result, poses=moved, points=points)

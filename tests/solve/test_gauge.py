@@ -37,6 +37,20 @@ def test_the_answer_is_the_conventional_gauges(group, kinds):
     assert result.final_cost == pytest.approx(conventional.final_cost, rel=1e-9)
 
 
+def test_the_estimates_reported_on_the_way_are_in_the_outputs_gauge():
+    """An ``estimate_callback`` (what ``--rerun`` records) sees every iteration's estimate moved back: the
+    first pose at its start throughout, the last estimate the answer itself."""
+    graph, _, _ = landmark_graph(SE2, 30, 12, ("position",), noise=0.05, seed=3)
+    start = _start(graph)
+    seen = []
+    result = optimize(graph, start, SolverParams(estimate_callback=lambda record, poses, points: seen.append((poses, points))))
+    assert len(seen) == result.iterations >= 2
+    for poses, _ in seen:
+        np.testing.assert_array_equal(poses[0], start[0])
+    np.testing.assert_array_equal(seen[-1][0], result.poses)
+    np.testing.assert_array_equal(seen[-1][1], result.points)
+
+
 def test_the_central_pose_is_nearest_each_components_centroid():
     graph, _, _ = landmark_graph(SE2, 20, 6, ("position",), noise=0.01, seed=4)
     poses = np.array(graph.poses)
