@@ -10,7 +10,12 @@ the tools alternating from round to round:
   reference runs did in 2D), one ``update`` and one ``calculateEstimate`` per new pose, a tight prior on
   the first pose in place of our anchor (a loose one, ``LOOSE_PRIOR_SIGMA``, on a pose with no edge to the
   poses already in), a new pose's initial value composed from the estimate of the pose its first edge
-  comes from.
+  comes from;
+* gtsam-converged (``--tools``): the same ISAM2 brought to the accuracy ours keeps, its relinearisation
+  threshold ``--isam2-threshold`` (every variable whose delta passes it relinearised at each step), and
+  after an update that adds more than one factor further ``update()`` calls until one lowers the whole
+  graph's error by at most CONVERGED_TOLERANCE of it (the whole-graph error is part of its time, as ours
+  evaluates the whole graph to know it is at the optimum).
 
 Per graph: total replay seconds (the updates only), per-update mean/p99/max, peak memory, and the cost
 excess of the estimate over the batch optimum of the same prefix (LM from the estimate, relative
@@ -36,11 +41,19 @@ SHARED = ROOT.parent / "shared" / "datasets"
 SESYNC = Path("/work/data-sesync")
 EXTRA = Path("/work/data-incr")
 """Graphs fetched for this benchmark, outside the repository."""
+TOOLS = ("posegraph", "gtsam", "gtsam-converged")
 GRAPHS = ("intel", "manhattan", "city10000", "w10000", "sphere2500", "parking-garage", "torus3D", "synthetic100k")
 TARGET_RATIO = 0.5
 LOOSE_PRIOR_SIGMA = 1e4
 """σ of the prior ISAM2 gets on a pose with no edge to the poses already in (ours anchors it as a component
 of its own until an edge joins it): its information 1e-8 adds ≲ 1e-8·d²/2 to the cost at distances d."""
+CONVERGED_THRESHOLD = 1e-4
+"""ISAM2's relinearisation threshold in the ``gtsam-converged`` runs (``--isam2-threshold``; ISAM2's
+default is 0.1): a variable whose delta passes it is relinearised. Measured on parking-garage:800, 1e-3
+leaves an excess of 3.5e-4, 1e-4 of 1.4e-7 and 1e-5 of 9e-11 (2.26, 2.49 and 3.35 s)."""
+CONVERGED_TOLERANCE = 1e-7
+"""``gtsam-converged`` stops iterating an update when a step lowers the error by at most this share of it."""
+CONVERGED_STEPS = 20
 COST_FLOOR = 1e-9
 """Relative excesses are divided by at least this: an odometry-only prefix has cost ~1e-27 (roundoff), not 0."""
 
@@ -142,24 +155,53 @@ def _gtsam_types(graph):
     return gtsam.Pose3, gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3, lambda m: gtsam.Pose3(m), lambda p: p.matrix()
 
 
-def run_gtsam(graph, check_every: int) -> dict:
-    """ISAM2 with default params; when Cholesky throws (``IndeterminantLinearSystem``), the whole replay again with QR."""
+def run_gtsam(graph, check_every: int, threshold: float | None = None) -> dict:
+    """ISAM2 with default params, or (``threshold`` given) converged at every update with that
+    relinearisation threshold (:func:`_converged_isam2`); when Cholesky throws (``IndeterminantLinearSystem``),
+    the whole replay again with QR."""
     try:
-        return dict(_run_isam2(graph, check_every, None), factorization="CHOLESKY")
+        return dict(_run_isam2(graph, check_every, None, threshold), factorization="CHOLESKY")
     except RuntimeError as err:
         if "ndetermin" not in str(err):  # gtsam says "Indeterminate linear system"
             raise
-        return dict(_run_isam2(graph, check_every, "QR"), factorization="QR", cholesky_error=str(err).splitlines()[0])
+        return dict(_run_isam2(graph, check_every, "QR", threshold), factorization="QR", cholesky_error=str(err).splitlines()[0])
 
 
-def _run_isam2(graph, check_every: int, factorization) -> dict:
+def _isam2(factorization, threshold: float | None):
     import gtsam
 
-    _, between, prior, to_gtsam, to_matrix = _gtsam_types(graph)
     params = gtsam.ISAM2Params()
     if factorization is not None:
         params.setFactorization(factorization)
-    isam = gtsam.ISAM2(params)
+    if threshold is not None:
+        params.setRelinearizeThreshold(threshold)
+        params.relinearizeSkip = 1
+    return gtsam.ISAM2(params)
+
+
+def _converged_isam2(isam, estimate):
+    """ISAM2 brought to posegraph's stopping rule after an update: further ``update()`` calls (each
+    relinearises the variables whose delta passed the threshold and takes one Gauss-Newton step)
+    until one lowers the whole graph's error by at most CONVERGED_TOLERANCE of it (the check is timed:
+    an exact answer needs it), at most CONVERGED_STEPS of them. Returns ``(estimate, steps)``."""
+    factors = isam.getFactorsUnsafe()
+    cost = factors.error(estimate)
+    for step in range(1, CONVERGED_STEPS + 1):
+        isam.update()
+        estimate = isam.calculateEstimate()
+        now = factors.error(estimate)
+        done = cost - now <= CONVERGED_TOLERANCE * now
+        cost = now
+        if done:
+            return estimate, step
+    return estimate, CONVERGED_STEPS
+
+
+def _run_isam2(graph, check_every: int, factorization, threshold: float | None = None) -> dict:
+    import gtsam
+
+    _, between, prior, to_gtsam, to_matrix = _gtsam_types(graph)
+    isam, converged = _isam2(factorization, threshold), threshold is not None
     order = np.argsort(graph.ids, kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(order.shape[0])
@@ -167,7 +209,7 @@ def _run_isam2(graph, check_every: int, factorization) -> dict:
     by_vertex = np.argsort(later, kind="stable")
     bounds = np.searchsorted(later[by_vertex], np.arange(order.shape[0] + 1))
     noise = [gtsam.noiseModel.Gaussian.Information(w) for w in graph.information]
-    last, seconds, checks = None, [], []
+    last, seconds, checks, extra = None, [], [], []
     for r, v in enumerate(order.tolist()):
         edges = by_vertex[bounds[r]:bounds[r + 1]]
         start = time.perf_counter()
@@ -191,20 +233,28 @@ def _run_isam2(graph, check_every: int, factorization) -> dict:
             factors.add(prior(v, to_gtsam(guess), gtsam.noiseModel.Isotropic.Sigma(graph.group.dim, LOOSE_PRIOR_SIGMA)))
         isam.update(factors, values)
         last = isam.calculateEstimate()
+        if converged and edges.size > 1:  # one edge to a new pose leaves the optimum as it was: nothing to iterate
+            last, steps = _converged_isam2(isam, last)
+            extra.append(steps)
         seconds.append(time.perf_counter() - start)
         if (r + 1) % check_every == 0 or r + 1 == len(order):
             poses = np.array([to_matrix(_at(last, graph, u)) for u in order[: r + 1].tolist()])
             checks.append((r + 1,) + batch_excess(prefix(graph, r + 1), poses))
-    return {"seconds": seconds, "checks": checks}
+    return {"seconds": seconds, "checks": checks, **({"extra_updates": int(np.sum(extra))} if converged else {})}
 
 
 def _at(values, graph, key):
     return values.atPose2(key) if graph.group.name == "SE2" else values.atPose3(key)
 
 
-def worker(tool: str, name: str, check_every: int, tolerance: float | None = None) -> dict:
+def worker(tool: str, name: str, check_every: int, tolerance: float | None = None, threshold: float = CONVERGED_THRESHOLD) -> dict:
+    """One tool's replay of ``name``: ``posegraph``, ``gtsam`` (ISAM2 defaults) or ``gtsam-converged``
+    (ISAM2 at the relinearisation ``threshold``, iterated to posegraph's stopping rule at every update)."""
     graph = load(name)
-    data = run_ours(graph, check_every, tolerance) if tool == "posegraph" else run_gtsam(graph, check_every)
+    if tool == "posegraph":
+        data = run_ours(graph, check_every, tolerance)
+    else:
+        data = run_gtsam(graph, check_every, threshold if tool == "gtsam-converged" else None)
     s = np.asarray(data["seconds"])
     ex = np.array([c[2] for c in data["checks"]])
     return {
@@ -213,12 +263,14 @@ def worker(tool: str, name: str, check_every: int, tolerance: float | None = Non
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "excess_mean": float(ex.mean()), "excess_max": float(ex.max()), "excess_end": float(ex[-1]),
         "checks": data["checks"], "per_update": s.tolist(),
-        **{k: data[k] for k in ("factorization", "cholesky_error", "analyses", "factorizations", "kinds") if k in data},
+        **{k: data[k] for k in ("factorization", "cholesky_error", "analyses", "factorizations", "kinds", "extra_updates") if k in data},
     }
 
 
-def spawn(tool: str, name: str, check_every: int, timeout: float, tolerance: float | None = None) -> dict:
-    command = [sys.executable, "-m", "benchmarks.bench_incremental", "--worker", tool, name, "--check-every", str(check_every)]
+def spawn(tool: str, name: str, check_every: int, timeout: float, tolerance: float | None = None,
+          threshold: float = CONVERGED_THRESHOLD) -> dict:
+    command = [sys.executable, "-m", "benchmarks.bench_incremental", "--worker", tool, name, "--check-every", str(check_every),
+               "--isam2-threshold", repr(threshold)]
     command += [] if tolerance is None else ["--tolerance", repr(tolerance)]
     try:
         done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
@@ -244,12 +296,16 @@ def main(argv=None) -> int:
     parser.add_argument("--check-every", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--tolerance", type=float, default=None, help="ours: IncrementalOptimizer(tolerance=T)")
+    parser.add_argument("--tools", nargs="+", default=["posegraph", "gtsam"], choices=TOOLS,
+                        help="tools to alternate (default: posegraph gtsam; gtsam-converged: ISAM2 iterated to our stopping rule)")
+    parser.add_argument("--isam2-threshold", type=float, default=CONVERGED_THRESHOLD,
+                        help=f"gtsam-converged's relinearisation threshold (default {CONVERGED_THRESHOLD:g})")
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per process")
     parser.add_argument("--json", metavar="PATH")
     parser.add_argument("--plot", metavar="PNG")
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.worker[0], args.worker[1], args.check_every, args.tolerance)))
+        print(json.dumps(worker(*args.worker, args.check_every, args.tolerance, args.isam2_threshold)))
         return 0
     rows = []
     for name in args.graphs:
@@ -257,9 +313,9 @@ def main(argv=None) -> int:
             print(f"{name:>15}: skipped (no {name}.g2o in {SHARED} or {SESYNC})", flush=True)
             continue
         for repeat in range(args.repeats):
-            tools = ("posegraph", "gtsam") if repeat % 2 == 0 else ("gtsam", "posegraph")
+            tools = args.tools if repeat % 2 == 0 else args.tools[::-1]
             for tool in tools:
-                rows.append(spawn(tool, name, args.check_every, args.timeout, args.tolerance))
+                rows.append(spawn(tool, name, args.check_every, args.timeout, args.tolerance, args.isam2_threshold))
                 print(_line(rows[-1]), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps([{k: v for k, v in r.items() if k != "per_update"} for r in rows], indent=1))
