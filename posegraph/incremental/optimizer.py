@@ -438,7 +438,7 @@ class IncrementalOptimizer:
         if self._drastic():
             result = self._batch_solve()
             return "full", int(np.count_nonzero(~held)), int(result.iterations)
-        ok, iterations, terms = self._whole.solve(held, self.solve_tolerance)
+        ok, iterations, terms = self._whole.solve(held, self.solve_tolerance, predicted_stop=self.tolerance > DEFAULT_TOLERANCE)
         if not ok:
             result = self._batch_solve()
             return "full", int(np.count_nonzero(~held)), iterations + int(result.iterations)

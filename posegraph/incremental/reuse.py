@@ -32,13 +32,15 @@ class LastPoint:
     def clear(self) -> None:
         self.poses = self.evaluation = self.blocks = None
 
-    def keep(self, poses: np.ndarray, evaluation: Evaluation, blocks: EdgeBlocks) -> None:
-        """Remember ``evaluation`` and ``blocks``, both made at ``poses`` ``(n, k, k)`` (copied)."""
+    def keep(self, poses: np.ndarray, evaluation: Evaluation, blocks: EdgeBlocks | None) -> None:
+        """Remember ``evaluation`` and ``blocks`` (None: a solve that stopped without linearising), both
+        made at ``poses`` ``(n, k, k)`` (copied)."""
         self.poses, self.evaluation, self.blocks = poses.copy(), evaluation, blocks
 
-    def extended(self, objective: Objective, poses: np.ndarray) -> tuple[Evaluation, EdgeBlocks] | None:
+    def extended(self, objective: Objective, poses: np.ndarray) -> tuple[Evaluation, EdgeBlocks | None] | None:
         """``(evaluation, blocks)`` of ``objective`` at ``poses``, from the kept ones and the new edges
-        alone; None when the kept ones do not apply (nothing kept, priors, a kept pose moved)."""
+        alone (``blocks`` None when none were kept); None when the kept ones do not apply (nothing kept,
+        priors, a kept pose moved)."""
         graph, kept = objective.graph, self.poses
         if kept is None or graph.priors is not None or poses.shape[0] < kept.shape[0]:
             return None
@@ -50,6 +52,8 @@ class LastPoint:
                             measurements=graph.measurements[part], information=graph.information[part])
         new = Objective(new_graph, objective.loss)
         evaluation = new.evaluate(poses)
+        if self.blocks is None:
+            return _joined_evaluation(self.evaluation, evaluation), None
         return _joined_evaluation(self.evaluation, evaluation), _joined_blocks(self.blocks, new.linearize(poses, evaluation),
                                                                                objective.information)
 

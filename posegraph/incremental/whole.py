@@ -392,8 +392,13 @@ class WholeGraph:
                           group=s.group, priors=s.priors())
         return Objective(graph, self.loss)
 
-    def solve(self, held: np.ndarray, tolerance: float, max_iterations: int = 30) -> tuple[bool, int, np.ndarray]:
+    def solve(self, held: np.ndarray, tolerance: float, max_iterations: int = 30,
+              predicted_stop: bool = False) -> tuple[bool, int, np.ndarray]:
         """Gauss-Newton on the whole graph, in place on the store's poses, until ``½ gᵀH⁻¹g ≤ tolerance · cost``.
+
+        ``predicted_stop`` (loose tolerances): also stop after a step that lowered the cost by its decrement
+        ``λ = ½ gᵀH̃⁻¹g`` to within ``tolerance · cost`` (``|λ − Δf|``, the excess left to second order when
+        ``H̃`` models the cost), without the check step's linearisation and solve.
 
         Returns ``(ok, iterations, terms (m,))`` with ``terms`` each edge's ``eᵀΩe`` (``ρ`` of it with a
         loss) at the final poses. ``ok`` False: a fresh step raised the cost or H was not positive
@@ -427,29 +432,47 @@ class WholeGraph:
             if not made_here and (decrement > CHORD_RATE * previous or not self._chord_pays()):
                 refactor = True  # the held system is off here, or its steps keep failing: refactorise at this point
                 continue
-            step = -self.held_factor.backward(half)
-            self.held_steps += not made_here
-            before = poses.copy()
-            poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
-            trial = objective.evaluate(poses) if decrement > 0 else None
-            if trial is None or not trial.cost <= evaluation.cost * (1 + 1e-12):
-                poses[:] = before
-                if not made_here:
-                    self._chord_outcome(False)
-                    refactor = True  # the held step failed: refactorise at this point (its blocks as they are)
-                    continue
-                trial = self._backtrack(objective, before, step, n, evaluation.cost)
-                if trial is None:
-                    poses[:] = saved
-                    return False, iteration, np.zeros(0)
+            outcome, trial = self._take_step(objective, half, made_here, evaluation.cost, n)
+            if outcome == "refactor":
+                refactor = True  # the held step raised the cost: refactorise at this point (its blocks as they are)
+                continue
+            if trial is None:
+                poses[:] = saved
+                return False, iteration, np.zeros(0)
+            if outcome == "backtracked":
                 refactor, previous, evaluation, blocks = True, np.inf, trial, None  # far from the optimum still
                 continue
-            if not made_here:
-                self._chord_outcome(True)
+            left = abs(decrement - (evaluation.cost - trial.cost))  # the excess left, to second order
             refactor, previous, evaluation, blocks = False, decrement, trial, None
+            if predicted_stop and left <= tolerance * evaluation.cost:
+                self.decrement = left
+                self.last.keep(poses, evaluation, None)
+                break  # the step did what the model said: within tolerance without the check step
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
         return True, iteration, self._terms(objective, evaluation)
+
+    def _take_step(self, objective: Objective, half, made_here: bool, cost: float, n: int):
+        """The step ``−H̃⁻¹g`` (the backward half of ``half``) applied to the store's poses; ``(outcome,
+        trial)``: ``"taken"`` and the evaluation at the new poses when the cost did not rise; ``"refactor"``
+        (poses restored) when a held step raised it; ``"backtracked"`` when a step on a factor made here did,
+        with the evaluation of the halved step that lowered the cost (:meth:`_backtrack`; None, poses
+        restored, when none did)."""
+        poses = self.store.poses.view
+        step = -self.held_factor.backward(half)
+        self.held_steps += not made_here
+        before = poses.copy()
+        poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
+        trial = objective.evaluate(poses) if half.decrement > 0 else None
+        if trial is not None and trial.cost <= cost * (1 + 1e-12):
+            if not made_here:
+                self._chord_outcome(True)
+            return "taken", trial
+        poses[:] = before
+        if not made_here:
+            self._chord_outcome(False)
+            return "refactor", None
+        return "backtracked", self._backtrack(objective, before, step, n, cost)
 
     def _end_factored(self, fresh: bool, blocks, held: np.ndarray, n: int) -> None:
         """When a covariance was asked since the last solve (``covariance_wanted``: a front end asking
@@ -502,7 +525,7 @@ class WholeGraph:
             self._analyse(held)
         objective, poses = self._objective(held), self.store.poses.view
         kept = self.last.extended(objective, poses)
-        if kept is not None:  # without a loss its Hessian blocks may be made already
+        if kept is not None and kept[1] is not None:  # without a loss its Hessian blocks may be made already
             blocks = kept[1] if kept[1].weights is None else replace(kept[1], weights=None)
         else:
             objective = Objective(objective.graph, None)

@@ -54,3 +54,31 @@ def test_a_removal_forgets_the_bound():
     opt.remove_edges(keys)
     assert opt.update().kind == "whole"  # solved, not deferred: the optimum may have dropped
     assert cost_excess(opt)[3] <= 0.05
+
+
+@pytest.mark.parametrize("group", [SE2, SE3], ids=["SE2", "SE3"])
+def test_a_loose_tolerance_stops_after_a_step_the_model_predicted(group):
+    """At tolerance 1e-3 a loop-closure update stops after one step when the cost fell by its Newton
+    decrement to within the tolerance (no check step: ``iterations == 1``); after every update the relative
+    excess over the batch optimum is still ≤ 1e-3. At the default tolerance every solved update checks."""
+    excesses, iterations = {}, {}
+    for tolerance in (1e-3, None):
+        rng = np.random.default_rng(5)
+        n = 60
+        truth = _truth(rng, group, n)
+        opt = IncrementalOptimizer(group) if tolerance is None else IncrementalOptimizer(group, tolerance=tolerance)
+        excesses[tolerance], iterations[tolerance] = [], []
+        for v in range(n):
+            opt.add_vertices([v], truth[v:v + 1])
+            if v:
+                i = np.array([v - 1] + ([int(rng.integers(0, v - 8))] if v >= 12 and v % 3 == 0 else []))
+                j = np.full(i.shape, v)
+                opt.add_edges(i, j, _noisy(rng, group, group.between(truth[i], truth[j])), _information(group, i.shape[0]))
+            info = opt.update()
+            if info.kind == "whole":
+                iterations[tolerance].append(info.iterations)
+            if v >= 2:
+                excesses[tolerance].append(cost_excess(opt)[3])
+    assert max(excesses[1e-3]) <= 1e-3
+    assert iterations[1e-3].count(1) >= 3, iterations[1e-3]
+    assert min(iterations[None]) >= 2
