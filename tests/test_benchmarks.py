@@ -232,3 +232,27 @@ def test_converged_isam2_reaches_the_batch_optimum_where_default_isam2_does_not(
     assert max(check[2] for check in converged["checks"]) <= 1e-6
     assert converged["extra_updates"] > 0 and "extra_updates" not in default
     assert [c[0] for c in converged["checks"]] == [100, 200, 300]
+
+
+def test_victoria_park_as_gtsam_reads_it_is_the_same_problem_for_both_tools(tmp_path):
+    """bench_incremental_landmarks writes gtsam's ``load2D`` reading of victoria_park.txt (odometry,
+    ``BearingRangeFactor2D``) as a file posegraph reads: posegraph's cost at the file's estimate equals
+    gtsam's own graph error at its initial values, and the ISAM2 side's per-update batches hold every
+    factor exactly once."""
+    gtsam = pytest.importorskip("gtsam")
+    from benchmarks import bench_incremental_landmarks as bench
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam
+    from posegraph.crosscheck.gtsam_landmarks import landmark_factors
+    from posegraph.incremental.replay import replay_batches
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve.objective import Objective
+
+    source = bench.file_path("gtsam:victoria_park.txt")
+    graph = read_g2o(bench.gtsam_problem_file(source, tmp_path / "problem.g2o"))
+    factors, initial = gtsam.load2D(str(source))
+    ours = Objective(graph).evaluate(graph.poses, graph.landmarks.positions).cost
+    assert [f.kind for f in graph.landmarks.observations] == ["bearing_range"]
+    assert ours == pytest.approx(factors.error(initial), rel=1e-12)
+    edges, measured = graph_to_gtsam(graph), landmark_factors(graph)
+    counts = [bench.batch_factors(graph, batch, edges, measured, [0]).size() for batch in replay_batches(graph, 1)]
+    assert sum(counts) == factors.size() == graph.num_edges + graph.landmarks.num_measurements

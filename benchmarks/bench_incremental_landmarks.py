@@ -1,0 +1,234 @@
+"""Landmark graphs replayed side by side with gtsam's ISAM2: ``python -m benchmarks.bench_incremental_landmarks``.
+
+Default file: gtsam's ``victoria_park.txt`` as gtsam's own ``load2D`` reads it: odometry as ``BetweenFactorPose2``
+and each ``LANDMARK`` sighting as a ``BearingRangeFactor2D`` (bearing σ 0.2, range σ √0.4), written out as a
+file posegraph reads (``EDGE_SE2`` with the factors' information, gtsam's ``BR`` lines: :func:`gtsam_problem_file`),
+so that both tools solve one problem (posegraph's own reading of the file's ``LANDMARK`` lines is a position
+measurement, another problem). Other files are read as ``posegraph replay`` reads them. Both tools take the same batches
+(:func:`posegraph.incremental.replay.replay_batches`: one pose per update with its odometry, the
+landmarks it sees first and its sightings), each tool in its own process, alternating from round to round:
+
+* ours: :func:`posegraph.incremental.replay.replay` with default settings;
+* gtsam: ``ISAM2`` with default ``ISAM2Params``, one ``update`` per pose and the estimate of the new pose
+  (``calculateEstimatePose2``: the whole estimate, ``calculateEstimate``, costs O(variables) a call), the
+  factors of :mod:`posegraph.crosscheck.gtsam_landmarks` (``BetweenFactorPose2``, ``BearingRangeFactor2D``:
+  gtsam's error equals our cost, checked in the tests), a tight prior on the first pose in place of our
+  anchor, a new pose composed from its odometry, a new landmark placed from its first sighting.
+
+Per tool: total seconds of the updates, mean/p99 per update, and the relative cost excess of the estimate over
+the batch optimum of the same prefix at every ``--check-every``-th pose and at the end (untimed; ours:
+:func:`posegraph.incremental.replay.cost_excess`; ISAM2: gtsam's LM on ISAM2's own factors from its estimate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_FILES = ("gtsam:victoria_park.txt",)
+ANCHOR_SIGMA = 1e-6
+"""σ of ISAM2's prior on the first pose (ours holds it): its cost at the optimum is ~0."""
+
+
+def file_path(name: str) -> Path:
+    """A file path, or ``gtsam:NAME`` for a file of gtsam's bundled data."""
+    if name.startswith("gtsam:"):
+        import gtsam
+
+        return Path(gtsam.findExampleDataFile(name.split(":", 1)[1]))
+    return Path(name)
+
+
+def gtsam_problem_file(source: Path, out: Path) -> Path:
+    """Write gtsam's ``load2D`` reading of ``source`` as ``VERTEX_SE2`` (its initial poses), ``EDGE_SE2``
+    (each ``BetweenFactorPose2``, its noise model's information, upper triangle) and ``BR i l θ r σθ σr``
+    lines (each ``BearingRangeFactor2D``, its diagonal sigmas), which posegraph reads as the same factors."""
+    import gtsam
+
+    factors, initial = gtsam.load2D(str(source))
+    lines = []
+    for key in initial.keys():
+        if gtsam.Symbol(key).chr() == 0:
+            pose = initial.atPose2(key)
+            lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {pose.theta()!r}")
+    for index in range(factors.size()):
+        factor = factors.at(index)
+        if isinstance(factor, gtsam.BetweenFactorPose2):
+            z, info = factor.measured(), factor.noiseModel().information()
+            upper = " ".join(repr(float(info[r, c])) for r in range(3) for c in range(r, 3))
+            lines.append(f"EDGE_SE2 {factor.keys()[0]} {factor.keys()[1]} {z.x()!r} {z.y()!r} {z.theta()!r} {upper}")
+        else:
+            pose, point = factor.keys()
+            z, sigmas = factor.measured(), factor.noiseModel().sigmas()
+            lines.append(f"BR {pose} {gtsam.Symbol(point).index()} {z.bearing().theta()!r} {z.range()!r} {float(sigmas[0])!r} {float(sigmas[1])!r}")
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+def load(name: str):
+    """The graph of ``name``: ``gtsam:victoria_park.txt`` as gtsam reads it (module docstring), else as
+    ``posegraph replay`` reads the file."""
+    import tempfile
+
+    from posegraph.io.g2o import read_g2o
+
+    path = file_path(name)
+    if name.startswith("gtsam:") and path.suffix == ".txt":
+        with tempfile.TemporaryDirectory() as folder:
+            return read_g2o(gtsam_problem_file(path, Path(folder) / "problem.g2o"))
+    return read_g2o(path)
+
+
+def run_ours(graph, check_every: int) -> dict:
+    from posegraph.incremental.replay import replay
+
+    result = replay(graph, 1, check_every=check_every)
+    return {"seconds": result.seconds.tolist(), "checks": [(c[0], c[3]) for c in result.checks],
+            "kinds": {k: result.kinds.count(k) for k in set(result.kinds)}}
+
+
+def batch_factors(graph, batch, edge_factors, landmark_factors, family_offsets):
+    """The gtsam factors of one replay batch: its pose edges, then its landmark measurements by family."""
+    import gtsam
+
+    _, edges, _, _, _, families = batch
+    factors = gtsam.NonlinearFactorGraph()
+    for e in np.asarray(edges).tolist():
+        factors.add(edge_factors.at(e))
+    for offset, rows in zip(family_offsets, families):
+        for r in np.asarray(rows).tolist():
+            factors.add(landmark_factors.at(offset + r))
+    return factors
+
+
+def _initial_values(graph, batch, isam, to_matrix):
+    """``(values, pose)``: the batch's new pose composed from ISAM2's estimate of its first edge's other end
+    (its file pose for the first one), and each new landmark placed from its first sighting in the batch."""
+    import gtsam
+
+    from posegraph.crosscheck.gtsam_landmarks import landmark_key
+    from posegraph.lie import se2
+
+    vertices, edges, _, _, landmarks, families = batch
+    v = int(vertices[0])
+    pose = graph.poses[v]
+    for e in np.asarray(edges).tolist():
+        i, j = int(graph.edge_from[e]), int(graph.edge_to[e])
+        if j == v and isam.valueExists(int(graph.ids[i])):
+            pose = to_matrix(isam.calculateEstimatePose2(int(graph.ids[i]))) @ graph.measurements[e]
+            break
+    values = gtsam.Values()
+    values.insert(int(graph.ids[v]), gtsam.Pose2(*se2.to_xytheta(pose)))
+    placed = {int(l): graph.landmarks.positions[l] for l in np.asarray(landmarks).tolist()}
+    for family, rows in zip(graph.landmarks.observations, families):
+        for r in np.asarray(rows).tolist():
+            l = int(family.landmark[r])
+            if l in placed and family.kind == "bearing_range" and int(family.pose[r]) == v:
+                bearing, distance = family.measurements[r]
+                placed[l] = (pose @ np.array([distance * np.cos(bearing), distance * np.sin(bearing), 1.0]))[:2]
+    for l, p in placed.items():
+        values.insert(landmark_key(l), np.asarray(p, dtype=np.float64).copy())
+    return values, pose
+
+
+def run_isam2(graph, check_every: int) -> dict:
+    import gtsam
+
+    from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam
+    from posegraph.crosscheck.gtsam_landmarks import landmark_factors
+    from posegraph.incremental.replay import replay_batches
+
+    edge_factors, measured = graph_to_gtsam(graph), landmark_factors(graph)
+    offsets = np.concatenate([[0], np.cumsum([f.count for f in graph.landmarks.observations])[:-1]]).astype(int).tolist()
+    isam, seconds, checks = gtsam.ISAM2(gtsam.ISAM2Params()), [], []
+    to_matrix = lambda p: p.matrix()  # noqa: E731
+    for number, batch in enumerate(replay_batches(graph, 1), 1):
+        start = time.perf_counter()
+        factors = batch_factors(graph, batch, edge_factors, measured, offsets)
+        values, pose = _initial_values(graph, batch, isam, to_matrix)
+        if number == 1:
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, ANCHOR_SIGMA)
+            factors.add(gtsam.PriorFactorPose2(int(graph.ids[batch[0][0]]), values.atPose2(int(graph.ids[batch[0][0]])), noise))
+        isam.update(factors, values)
+        isam.calculateEstimatePose2(int(graph.ids[batch[0][0]]))  # the latest pose, what a front end reads
+        seconds.append(time.perf_counter() - start)
+        if number % check_every == 0 or number == graph.num_vertices:
+            checks.append((number, _isam2_excess(isam, isam.calculateEstimate())))
+    return {"seconds": seconds, "checks": checks}
+
+
+def _isam2_excess(isam, estimate) -> float:
+    """Relative excess of ISAM2's estimate over gtsam's LM optimum of the same factors, started there."""
+    import gtsam
+
+    factors = isam.getFactorsUnsafe()
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-12)
+    params.setAbsoluteErrorTol(0.0)
+    params.setMaxIterations(200)
+    best = gtsam.LevenbergMarquardtOptimizer(factors, estimate, params).optimize()
+    ours, optimum = factors.error(estimate), factors.error(best)
+    return (ours - min(optimum, ours)) / max(min(optimum, ours), 1e-9)
+
+
+def worker(tool: str, name: str, check_every: int) -> dict:
+    graph = load(name)
+    data = run_ours(graph, check_every) if tool == "posegraph" else run_isam2(graph, check_every)
+    s, excess = np.asarray(data["seconds"]), np.array([c[1] for c in data["checks"]])
+    return {"tool": tool, "file": name, "poses": graph.num_vertices, "landmarks": graph.landmarks.count,
+            "measurements": int(graph.landmarks.num_measurements), "total": float(s.sum()), "mean": float(s.mean()),
+            "p99": float(np.percentile(s, 99)), "max": float(s.max()), "excess_max": float(excess.max()),
+            "excess_end": float(excess[-1]), "checks": data["checks"], **({"kinds": data["kinds"]} if "kinds" in data else {})}
+
+
+def spawn(tool: str, name: str, check_every: int, timeout: float) -> dict:
+    command = [sys.executable, "-m", "benchmarks.bench_incremental_landmarks", "--worker", tool, name, "--check-every", str(check_every)]
+    try:
+        done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"tool": tool, "file": name, "error": f"timed out after {timeout:.0f} s"}
+    if done.returncode != 0:
+        return {"tool": tool, "file": name, "error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _line(row: dict) -> str:
+    if "error" in row:
+        return f"{row['file']} {row['tool']}: {row['error']}"
+    return (f"{row['file']} {row['tool']:>9}: total {row['total']:8.2f} s, mean {1e3 * row['mean']:7.2f} ms, p99 "
+            f"{1e3 * row['p99']:8.2f} ms, max {1e3 * row['max']:8.1f} ms, excess max {row['excess_max']:.2g} end "
+            f"{row['excess_end']:.2g} {row.get('kinds', '')}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("files", nargs="*", default=list(DEFAULT_FILES), help="landmark files (gtsam:NAME: gtsam's bundled data)")
+    parser.add_argument("--worker", nargs=2, metavar=("TOOL", "FILE"), help=argparse.SUPPRESS)
+    parser.add_argument("--check-every", type=int, default=500)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per process")
+    parser.add_argument("--json", metavar="PATH")
+    args = parser.parse_args(argv)
+    if args.worker:
+        print(json.dumps(worker(args.worker[0], args.worker[1], args.check_every)))
+        return 0
+    rows = []
+    for name in args.files:
+        for repeat in range(args.repeats):
+            for tool in ("posegraph", "gtsam") if repeat % 2 == 0 else ("gtsam", "posegraph"):
+                rows.append(spawn(tool, name, args.check_every, args.timeout))
+                print(_line(rows[-1]), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
