@@ -13,7 +13,8 @@ landmarks it sees first and its sightings), each tool in its own process, altern
   (``calculateEstimatePose2``: the whole estimate, ``calculateEstimate``, costs O(variables) a call), the
   factors of :mod:`posegraph.crosscheck.gtsam_landmarks` (``BetweenFactorPose2``, ``BearingRangeFactor2D``:
   gtsam's error equals our cost, checked in the tests), a tight prior on the first pose in place of our
-  anchor, a new pose composed from its odometry, a new landmark placed from its first sighting.
+  anchor, a new pose composed from its odometry, a new landmark placed from its first sighting;
+* gtsam-converged (``--tools``): the same ISAM2 iterated to our stopping rule (``bench_incremental``).
 
 Per tool: total seconds of the updates, mean/p99 per update, and the relative cost excess of the estimate over
 the batch optimum of the same prefix at every ``--check-every``-th pose and at the end (untimed; ours:
@@ -30,6 +31,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.bench_incremental import CONVERGED_THRESHOLD
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_FILES = ("gtsam:victoria_park.txt",)
@@ -138,16 +141,19 @@ def _initial_values(graph, batch, isam, to_matrix):
     return values, pose
 
 
-def run_isam2(graph, check_every: int) -> dict:
+def run_isam2(graph, check_every: int, threshold: float | None = None) -> dict:
+    """ISAM2 with default params, or (``threshold`` given) iterated to posegraph's stopping rule after each
+    update that adds more than one factor (``bench_incremental``'s ``gtsam-converged``)."""
     import gtsam
 
+    from benchmarks.bench_incremental import _converged_isam2, _isam2
     from posegraph.crosscheck.gtsam_bridge import graph_to_gtsam
     from posegraph.crosscheck.gtsam_landmarks import landmark_factors
     from posegraph.incremental.replay import replay_batches
 
     edge_factors, measured = graph_to_gtsam(graph), landmark_factors(graph)
     offsets = np.concatenate([[0], np.cumsum([f.count for f in graph.landmarks.observations])[:-1]]).astype(int).tolist()
-    isam, seconds, checks = gtsam.ISAM2(gtsam.ISAM2Params()), [], []
+    isam, seconds, checks, extra = _isam2(None, threshold), [], [], []
     to_matrix = lambda p: p.matrix()  # noqa: E731
     for number, batch in enumerate(replay_batches(graph, 1), 1):
         start = time.perf_counter()
@@ -157,11 +163,14 @@ def run_isam2(graph, check_every: int) -> dict:
             noise = gtsam.noiseModel.Isotropic.Sigma(3, ANCHOR_SIGMA)
             factors.add(gtsam.PriorFactorPose2(int(graph.ids[batch[0][0]]), values.atPose2(int(graph.ids[batch[0][0]])), noise))
         isam.update(factors, values)
-        isam.calculateEstimatePose2(int(graph.ids[batch[0][0]]))  # the latest pose, what a front end reads
+        if threshold is not None and factors.size() > 1:
+            extra.append(_converged_isam2(isam, isam.calculateEstimate())[1])
+        else:
+            isam.calculateEstimatePose2(int(graph.ids[batch[0][0]]))  # the latest pose, what a front end reads
         seconds.append(time.perf_counter() - start)
         if number % check_every == 0 or number == graph.num_vertices:
             checks.append((number, _isam2_excess(isam, isam.calculateEstimate())))
-    return {"seconds": seconds, "checks": checks}
+    return {"seconds": seconds, "checks": checks, **({"extra_updates": int(np.sum(extra))} if threshold is not None else {})}
 
 
 def _isam2_excess(isam, estimate) -> float:
@@ -178,18 +187,23 @@ def _isam2_excess(isam, estimate) -> float:
     return (ours - min(optimum, ours)) / max(min(optimum, ours), 1e-9)
 
 
-def worker(tool: str, name: str, check_every: int) -> dict:
+def worker(tool: str, name: str, check_every: int, threshold: float | None = None) -> dict:
+    """One tool's replay: ``posegraph``, ``gtsam`` (ISAM2 defaults) or ``gtsam-converged`` (at ``threshold``)."""
     graph = load(name)
-    data = run_ours(graph, check_every) if tool == "posegraph" else run_isam2(graph, check_every)
+    if tool == "posegraph":
+        data = run_ours(graph, check_every)
+    else:
+        data = run_isam2(graph, check_every, threshold if tool == "gtsam-converged" else None)
     s, excess = np.asarray(data["seconds"]), np.array([c[1] for c in data["checks"]])
     return {"tool": tool, "file": name, "poses": graph.num_vertices, "landmarks": graph.landmarks.count,
             "measurements": int(graph.landmarks.num_measurements), "total": float(s.sum()), "mean": float(s.mean()),
             "p99": float(np.percentile(s, 99)), "max": float(s.max()), "excess_max": float(excess.max()),
-            "excess_end": float(excess[-1]), "checks": data["checks"], **({"kinds": data["kinds"]} if "kinds" in data else {})}
+            "excess_end": float(excess[-1]), "checks": data["checks"], **{k: data[k] for k in ("kinds", "extra_updates") if k in data}}
 
 
-def spawn(tool: str, name: str, check_every: int, timeout: float) -> dict:
-    command = [sys.executable, "-m", "benchmarks.bench_incremental_landmarks", "--worker", tool, name, "--check-every", str(check_every)]
+def spawn(tool: str, name: str, check_every: int, timeout: float, threshold: float) -> dict:
+    command = [sys.executable, "-m", "benchmarks.bench_incremental_landmarks", "--worker", tool, name, "--check-every", str(check_every),
+               "--isam2-threshold", repr(threshold)]
     try:
         done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -215,15 +229,17 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per process")
     parser.add_argument("--json", metavar="PATH")
+    parser.add_argument("--tools", nargs="+", default=["posegraph", "gtsam"], choices=("posegraph", "gtsam", "gtsam-converged"))
+    parser.add_argument("--isam2-threshold", type=float, default=CONVERGED_THRESHOLD, help="gtsam-converged's relinearisation threshold")
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.worker[0], args.worker[1], args.check_every)))
+        print(json.dumps(worker(*args.worker, args.check_every, args.isam2_threshold)))
         return 0
     rows = []
     for name in args.files:
         for repeat in range(args.repeats):
-            for tool in ("posegraph", "gtsam") if repeat % 2 == 0 else ("gtsam", "posegraph"):
-                rows.append(spawn(tool, name, args.check_every, args.timeout))
+            for tool in args.tools if repeat % 2 == 0 else args.tools[::-1]:
+                rows.append(spawn(tool, name, args.check_every, args.timeout, args.isam2_threshold))
                 print(_line(rows[-1]), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
