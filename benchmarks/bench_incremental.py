@@ -276,8 +276,10 @@ def worker(tool: str, name: str, check_every: int, tolerance: float | None = Non
 
 
 def spawn(tool: str, name: str, check_every: int, timeout: float, tolerance: float | None = None,
-          threshold: float = CONVERGED_THRESHOLD) -> dict:
-    command = [sys.executable, "-m", "benchmarks.bench_incremental", "--worker", tool, name, "--check-every", str(check_every),
+          threshold: float = CONVERGED_THRESHOLD, module: str = "benchmarks.bench_incremental") -> dict:
+    """One tool's replay of ``name`` in a child process (``module``'s ``--worker``): its JSON row, or
+    ``{tool, graph, error}``."""
+    command = [sys.executable, "-m", module, "--worker", tool, name, "--check-every", str(check_every),
                "--isam2-threshold", repr(threshold)]
     command += [] if tolerance is None else ["--tolerance", repr(tolerance)]
     try:

@@ -25,14 +25,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
+import resource
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_incremental import CONVERGED_THRESHOLD
+from benchmarks.bench_incremental import CONVERGED_THRESHOLD, _line, spawn
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_FILES = ("gtsam:victoria_park.txt",)
@@ -195,30 +195,12 @@ def worker(tool: str, name: str, check_every: int, threshold: float | None = Non
     else:
         data = run_isam2(graph, check_every, threshold if tool == "gtsam-converged" else None)
     s, excess = np.asarray(data["seconds"]), np.array([c[1] for c in data["checks"]])
-    return {"tool": tool, "file": name, "poses": graph.num_vertices, "landmarks": graph.landmarks.count,
+    return {"tool": tool, "graph": name, "poses": graph.num_vertices, "landmarks": graph.landmarks.count,
             "measurements": int(graph.landmarks.num_measurements), "total": float(s.sum()), "mean": float(s.mean()),
-            "p99": float(np.percentile(s, 99)), "max": float(s.max()), "excess_max": float(excess.max()),
-            "excess_end": float(excess[-1]), "checks": data["checks"], **{k: data[k] for k in ("kinds", "extra_updates") if k in data}}
-
-
-def spawn(tool: str, name: str, check_every: int, timeout: float, threshold: float) -> dict:
-    command = [sys.executable, "-m", "benchmarks.bench_incremental_landmarks", "--worker", tool, name, "--check-every", str(check_every),
-               "--isam2-threshold", repr(threshold)]
-    try:
-        done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {"tool": tool, "file": name, "error": f"timed out after {timeout:.0f} s"}
-    if done.returncode != 0:
-        return {"tool": tool, "file": name, "error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def _line(row: dict) -> str:
-    if "error" in row:
-        return f"{row['file']} {row['tool']}: {row['error']}"
-    return (f"{row['file']} {row['tool']:>9}: total {row['total']:8.2f} s, mean {1e3 * row['mean']:7.2f} ms, p99 "
-            f"{1e3 * row['p99']:8.2f} ms, max {1e3 * row['max']:8.1f} ms, excess max {row['excess_max']:.2g} end "
-            f"{row['excess_end']:.2g} {row.get('kinds', '')}")
+            "p99": float(np.percentile(s, 99)), "max": float(s.max()), "excess_mean": float(excess.mean()),
+            "excess_max": float(excess.max()), "excess_end": float(excess[-1]), "checks": data["checks"],
+            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            **{k: data[k] for k in ("kinds", "extra_updates") if k in data}}
 
 
 def main(argv=None) -> int:
@@ -239,7 +221,8 @@ def main(argv=None) -> int:
     for name in args.files:
         for repeat in range(args.repeats):
             for tool in args.tools if repeat % 2 == 0 else args.tools[::-1]:
-                rows.append(spawn(tool, name, args.check_every, args.timeout, args.isam2_threshold))
+                rows.append(spawn(tool, name, args.check_every, args.timeout, threshold=args.isam2_threshold,
+                                  module="benchmarks.bench_incremental_landmarks"))
                 print(_line(rows[-1]), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
