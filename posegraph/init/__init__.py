@@ -48,8 +48,7 @@ def file_initialization(graph: PoseGraph) -> np.ndarray:
 def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarray:
     """Initial poses ``(n, k, k)`` (``k = graph.group.matrix_size``) for ``graph`` by ``method`` (``"chordal"``, ``"odometry"``, ``"file"``).
 
-    A landmark graph's chordal start is its file's values when they already fit the measurements
-    (:func:`posegraph.init.file_start.file_values_fit`), else the relaxation over poses and points together
+    A landmark graph's chordal start is the relaxation over poses and points together
     (:func:`posegraph.init.relaxation.relaxed_start`; with priors, or when that system is singular,
     and for ``"odometry"``: the pose edges alone, each component of them anchored as in a pose graph);
     :func:`posegraph.init.landmarks.initialize_landmarks` then places the landmarks.
@@ -76,13 +75,10 @@ def initialize(graph: PoseGraph, method: str = "chordal", **options) -> np.ndarr
 
 
 def _landmark_graph_start(graph: PoseGraph, method: str, options: dict) -> np.ndarray:
-    """A landmark graph's poses: its file's values if they fit, else the relaxation with its landmarks
-    (both ``"chordal"``, no priors), else the start of its pose edges alone (:func:`initialize`'s docstring)."""
-    from posegraph.init.file_start import file_values_fit
+    """A landmark graph's poses: the relaxation with its landmarks (``"chordal"``, no priors), else the
+    start of its pose edges alone (:func:`initialize`'s docstring)."""
     from posegraph.init.relaxation import MAX_ENTRIES, relaxation_entries, relaxed_start
 
-    if method == "chordal" and graph.priors is None and set(options) <= {"linear_solver"} and file_values_fit(graph):
-        return file_initialization(graph)  # values a front end refined: as good a start, without the relaxation
     # (linear_solver: the relaxation solves by CHOLMOD, or SuperLU without cvxopt)
     if method == "chordal" and graph.priors is None and set(options) <= {"linear_solver"} and relaxation_entries(graph) <= MAX_ENTRIES:
         from posegraph.linalg.cholmod import NotPositiveDefiniteError

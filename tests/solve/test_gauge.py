@@ -122,7 +122,7 @@ def test_the_central_gauge_takes_no_more_iterations_on_the_public_files(name):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the files' DATA_FEATURE lines, which posegraph does not read
         graph = read_g2o(DATA / name)
-    start = relaxed_start(graph)  # (the worlds' default start is their file's values, init/file_start.py)
+    start = relaxed_start(graph)  # (the worlds' default start is their file's values, solve/file_start.py)
     central = optimize(graph, start)
     conventional = optimize(graph, start, hold=np.zeros(graph.num_vertices, dtype=bool))
     assert central.converged and central.iterations <= conventional.iterations
