@@ -12,8 +12,9 @@ def solver_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("lm", "gn"), default="lm",
                    help="Levenberg-Marquardt (default) or Gauss-Newton")
     p.add_argument("--init", choices=("chordal", "odometry", "file"), default="chordal",
-                   help="start: chordal relaxation of the rotations (default), chaining the odometry "
-                        "edges, or the poses in the file")
+                   help="start: chordal relaxation of the rotations (default; a landmark graph whose file "
+                        "values already fit its measurements, cost <= 1 per residual row, starts from them), "
+                        "chaining the odometry edges, or the poses in the file")
     p.add_argument("-i", "--max-iterations", type=non_negative_int, default=100, metavar="N",
                    help="iteration cap (default 100; -i as in g2o); reaching it gives exit status 1")
     p.add_argument("--relative-tolerance", type=non_negative_float, default=None, metavar="TOL",
@@ -57,13 +58,13 @@ def check_linear_solver(graph, linear_solver: str, path: str) -> None:
 def initial_poses(graph, args):
     """The start ``(n, 4, 4)`` that ``--init`` names; None for ``--robust gnc --init chordal`` (the
     robust chordal start, which GNC makes)."""
-    from posegraph.init import initialize
+    from posegraph.solve.file_start import start_poses
 
     if getattr(args, "robust", "none") == "gnc" and args.init == "chordal":
         return None
     if args.init == "chordal":
-        return initialize(graph, method="chordal", linear_solver=args.linear_solver)
-    return initialize(graph, method=args.init)
+        return start_poses(graph, "chordal", linear_solver=args.linear_solver)
+    return start_poses(graph, args.init)
 
 
 def iteration_printer(status: Status, max_iterations: int):

@@ -141,6 +141,8 @@ def landmark_jacobians(group, poses: np.ndarray, points: np.ndarray, family: Obs
         s = e.shape[1]
         return e, None, np.broadcast_to(np.eye(s), (len(e), s, s)).copy()
     w, y, R, R_O = sensed
+    if family.kind == "position" and R_O is None:  # ∂e/∂w = I: the products by it left out
+        return e, _body_jacobian(w), np.swapaxes(R, -1, -2).copy()
     J_e_w = _measurement_jacobian(family.kind, y)
     if R_O is not None:
         J_e_w = J_e_w @ np.swapaxes(R_O, -1, -2)  # ∂e/∂y · ∂y/∂w

@@ -78,8 +78,8 @@ def linearize_landmarks(
     """The blocks of every family at ``poses``, ``points`` (module docstring); ``weights`` ``(Σq,)`` or
     None; ``errors``: :func:`landmark_errors` there, if already computed (its residuals are reused).
 
-    With ``J = [A | P]`` ``(q, r, d + s)``, one product ``Jᵀ (w Ω) J`` gives all three blocks of a
-    measurement and ``Jᵀ (w Ω) e`` both gradients."""
+    Each block is one batched product, ``Aᵀ(wΩA)``, ``Pᵀ(wΩP)``, ``Aᵀ(wΩP)``, written straight into its
+    part of the family's raveled output (:func:`_pair_blocks`)."""
     hessian, gradient, start = [], [], 0
     for number, family in enumerate(graph.landmarks.observations):  # ≤ 4 families
         evaluated = None if errors is None else (errors.residuals[number], errors.sensed[number])
@@ -88,16 +88,31 @@ def linearize_landmarks(
         if weights is not None:
             omega = omega * weights[start : start + family.count, None, None]
         start += family.count
-        J = P if A is None else np.concatenate([A, P], axis=2)
-        omega_J = omega @ J
-        full = np.swapaxes(J, 1, 2) @ omega_J  # (q, d + s, d + s)
-        gradient.append(np.einsum("qrc,qr->qc", omega_J, e))  # [g_pose, g_point]
+        omega_P = omega @ P
         if A is None:
-            hessian.append(full.ravel())
+            hessian.append((np.swapaxes(P, 1, 2) @ omega_P).ravel())
+            gradient.append(np.einsum("qrc,qr->qc", omega_P, e))
             continue
-        d = A.shape[2]
-        hessian.append(np.concatenate([full[:, :d, :d].ravel(), full[:, d:, d:].ravel(), full[:, :d, d:].ravel()]))
+        blocks, pair_gradient = _pair_blocks(A, P, omega @ A, omega_P, e)
+        hessian.append(blocks)
+        gradient.append(pair_gradient)
     return LandmarkBlocks(tuple(hessian), tuple(gradient))
+
+
+def _pair_blocks(A: np.ndarray, P: np.ndarray, omega_A: np.ndarray, omega_P: np.ndarray, e: np.ndarray):
+    """``(hessian (q·(d² + s² + d·s),), gradient (q, d + s))`` of a pose–point family: ``[AᵀΩA, PᵀΩP, AᵀΩP]``
+    raveled one after the other and ``[AᵀΩe, PᵀΩe]``, from ``A (q, r, d)``, ``P (q, r, s)``, ``ΩA``, ``ΩP``
+    (weights in Ω) and ``e (q, r)``."""
+    q, _, d = A.shape
+    s = P.shape[2]
+    hessian, gradient = np.empty(q * (d * d + s * s + d * s)), np.empty((q, d + s))
+    A_t = np.swapaxes(A, 1, 2)
+    np.matmul(A_t, omega_A, out=hessian[: q * d * d].reshape(q, d, d))
+    np.matmul(np.swapaxes(P, 1, 2), omega_P, out=hessian[q * d * d : q * (d * d + s * s)].reshape(q, s, s))
+    np.matmul(A_t, omega_P, out=hessian[q * (d * d + s * s) :].reshape(q, d, s))
+    np.einsum("qrc,qr->qc", omega_A, e, out=gradient[:, :d])
+    np.einsum("qrc,qr->qc", omega_P, e, out=gradient[:, d:])
+    return hessian, gradient
 
 
 def add_landmark_gradient(pattern: HessianPattern, gradient: np.ndarray, blocks: LandmarkBlocks) -> None:

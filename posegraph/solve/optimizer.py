@@ -133,8 +133,9 @@ def optimize(
         ``landmarks``, if any, are solved with the poses (``docs/landmarks.md``).
     initial : None, str or (n, k, k) array
         Starting poses: an array, or the name of an initialiser — ``"file"`` (the graph's own
-        poses), ``"chordal"`` or ``"odometry"`` (:func:`posegraph.init.initialize`). ``None`` means
-        ``"chordal"``.
+        poses), ``"chordal"`` or ``"odometry"`` (:func:`posegraph.init.initialize`; a landmark graph whose
+        own values fit its measurements starts there for ``"chordal"``: :mod:`posegraph.solve.file_start`).
+        ``None`` means ``"chordal"``.
     params : SolverParams, optional
         Method, tolerances, damping, loss and linear solver (:class:`~posegraph.solve.params.SolverParams`).
     analysis : Analysis, optional
@@ -198,9 +199,9 @@ def _initial_poses(graph: PoseGraph, initial) -> np.ndarray:
         if initial == "file":
             poses = graph.poses
         else:
-            from posegraph.init import initialize
+            from posegraph.solve.file_start import start_poses
 
-            poses = initialize(graph, initial)
+            poses = start_poses(graph, initial)
     else:
         poses = initial
     poses = np.array(poses, dtype=np.float64, copy=True)

@@ -114,7 +114,7 @@ def test_the_central_gauge_takes_no_more_iterations_on_the_public_files(name):
     (the world-2000 defaults: about half), to the same cost."""
     import warnings
 
-    from posegraph.init import initialize
+    from posegraph.init.relaxation import relaxed_start
     from posegraph.io.g2o import read_g2o
 
     if not (DATA / name).exists():
@@ -122,7 +122,7 @@ def test_the_central_gauge_takes_no_more_iterations_on_the_public_files(name):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the files' DATA_FEATURE lines, which posegraph does not read
         graph = read_g2o(DATA / name)
-    start = initialize(graph)
+    start = relaxed_start(graph)  # (the worlds' default start is their file's values, solve/file_start.py)
     central = optimize(graph, start)
     conventional = optimize(graph, start, hold=np.zeros(graph.num_vertices, dtype=bool))
     assert central.converged and central.iterations <= conventional.iterations
