@@ -17,8 +17,11 @@ landmarks it sees first and its sightings), each tool in its own process, altern
 * gtsam-converged (``--tools``): the same ISAM2 iterated to our stopping rule (``bench_incremental``).
 
 Per tool: total seconds of the updates, mean/p99 per update, and the relative cost excess of the estimate over
-the batch optimum of the same prefix at every ``--check-every``-th pose and at the end (untimed; ours:
-:func:`posegraph.incremental.replay.cost_excess`; ISAM2: gtsam's LM on ISAM2's own factors from its estimate).
+the batch optimum of the same prefix at every ``--check-every``-th pose (default 100) and at the end, untimed
+and by one function for both tools (:func:`landmark_excess`: posegraph's cost, posegraph's batch ``optimize``
+of :func:`landmark_prefix` from the estimate). At each ISAM2 check the error of the factors ISAM2 holds
+(without its prior) is compared with posegraph's cost of the same estimate (``cost_agreement``, the largest
+relative difference: ~1e-12 when both tools solve one problem).
 """
 
 from __future__ import annotations
