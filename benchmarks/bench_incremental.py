@@ -287,7 +287,8 @@ def spawn(tool: str, name: str, check_every: int, timeout: float, tolerance: flo
     except subprocess.TimeoutExpired:
         return {"tool": tool, "graph": name, "error": f"timed out after {timeout:.0f} s"}
     if done.returncode != 0:
-        return {"tool": tool, "graph": name, "error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
+        return {"tool": tool, "graph": name, "error": done.stderr.strip().splitlines()[-1] if done.stderr.strip()
+                else f"exit status {done.returncode}, no message"}
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

@@ -17,8 +17,11 @@ landmarks it sees first and its sightings), each tool in its own process, altern
 * gtsam-converged (``--tools``): the same ISAM2 iterated to our stopping rule (``bench_incremental``).
 
 Per tool: total seconds of the updates, mean/p99 per update, and the relative cost excess of the estimate over
-the batch optimum of the same prefix at every ``--check-every``-th pose and at the end (untimed; ours:
-:func:`posegraph.incremental.replay.cost_excess`; ISAM2: gtsam's LM on ISAM2's own factors from its estimate).
+the batch optimum of the same prefix at every ``--check-every``-th pose (default 100) and at the end, untimed
+and by one function for both tools (:func:`landmark_excess`: posegraph's cost, posegraph's batch ``optimize``
+of :func:`landmark_prefix` from the estimate). At each ISAM2 check the error of the factors ISAM2 holds
+(without its prior) is compared with posegraph's cost of the same estimate (``cost_agreement``, the largest
+relative difference: ~1e-12 when both tools solve one problem).
 """
 
 from __future__ import annotations
@@ -89,11 +92,69 @@ def load(name: str):
     return read_g2o(path)
 
 
-def run_ours(graph, check_every: int) -> dict:
-    from posegraph.incremental.replay import replay
+def landmark_prefix(graph, batches: list, count: int):
+    """``(prefix graph, its vertices, its landmarks)``: the graph a replay holds after the first ``count`` of
+    ``batches`` (:func:`posegraph.incremental.replay.replay_batches` of ``graph``, one pose each): the first
+    ``count`` poses in id order (``bench_incremental.prefix``), the landmarks they saw first in the order they
+    entered, and the measurements of those poses; vertices and landmarks as indices into ``graph``."""
+    from dataclasses import replace
 
-    result = replay(graph, 1, check_every=check_every)
-    return {"seconds": result.seconds.tolist(), "checks": [(c[0], c[3]) for c in result.checks],
+    from benchmarks.bench_incremental import prefix
+
+    if graph.priors is not None:
+        raise ValueError("landmark_prefix takes graphs without pose or position priors")
+    kept, model = batches[:count], graph.landmarks
+    vertices = np.concatenate([b[0] for b in kept]).astype(np.int64)
+    landmarks = np.concatenate([np.zeros(0, np.int64)] + [b[4] for b in kept]).astype(np.int64)
+    pose_index, landmark_index = np.full(graph.num_vertices, -1), np.full(model.count, -1)
+    pose_index[vertices], landmark_index[landmarks] = np.arange(vertices.size), np.arange(landmarks.size)
+    families = []
+    for f, family in enumerate(model.observations):
+        rows = np.concatenate([np.zeros(0, np.int64)] + [b[5][f] for b in kept]).astype(np.int64)
+        families.append(replace(family, pose=np.where(family.pose[rows] < 0, -1, pose_index[family.pose[rows]]),
+                                landmark=landmark_index[family.landmark[rows]], measurements=family.measurements[rows],
+                                information=family.information[rows], lines=None, offset_ids=None, text=None,
+                                offsets=None if family.offsets is None else family.offsets[rows]))
+    held = replace(model, ids=model.ids[landmarks], positions=model.positions[landmarks], fixed=model.fixed[landmarks],
+                   observations=tuple(families))
+    return replace(prefix(graph, count), landmarks=held), vertices, landmarks
+
+
+def landmark_excess(graph, poses, points) -> tuple[float, float]:
+    """``(cost, relative excess over the batch optimum)`` of ``poses`` ``(n, k, k)`` and ``points`` ``(L, s)``
+    on ``graph``: posegraph's cost, and posegraph's batch ``optimize`` from them (LM, relative tolerance 1e-12)
+    as the optimum. The one measure of both tools' estimates."""
+    from benchmarks.bench_incremental import COST_FLOOR
+    from posegraph.solve import SolverParams, optimize
+    from posegraph.solve.objective import Objective
+
+    ours = Objective(graph).evaluate(poses, points).cost
+    params = SolverParams(relative_tolerance=1e-12, absolute_tolerance=0.0, max_iterations=200)
+    best = min(optimize(graph, initial=poses, params=params, initial_points=points).final_cost, ours)
+    return ours, (ours - best) / max(best, COST_FLOOR)
+
+
+def _is_check(number: int, check_every: int, total: int) -> bool:
+    return number % check_every == 0 or number == total
+
+
+def run_ours(graph, check_every: int) -> dict:
+    """``posegraph.incremental.replay.replay`` with default settings; the checks (untimed) by
+    :func:`landmark_excess` on :func:`landmark_prefix`."""
+    from posegraph.incremental.replay import replay, replay_batches
+
+    batches, checks = list(replay_batches(graph, 1)), []
+
+    def progress(result, number):
+        if _is_check(number, check_every, len(batches)):
+            opt = result.optimizer
+            held, _, landmarks = landmark_prefix(graph, batches, number)
+            order = {int(i): r for r, i in enumerate(np.asarray(opt.landmark_ids).tolist())}
+            points = np.asarray(opt.landmark_positions)[[order[int(i)] for i in graph.landmarks.ids[landmarks]]]
+            checks.append((number, landmark_excess(held, opt.poses, points)[1]))
+
+    result = replay(graph, 1, progress=progress)
+    return {"seconds": result.seconds.tolist(), "checks": checks,
             "kinds": {k: result.kinds.count(k) for k in set(result.kinds)}}
 
 
@@ -143,7 +204,8 @@ def _initial_values(graph, batch, isam, to_matrix):
 
 def run_isam2(graph, check_every: int, threshold: float | None = None) -> dict:
     """ISAM2 with default params, or (``threshold`` given) iterated to posegraph's stopping rule after each
-    update that adds more than one factor (``bench_incremental``'s ``gtsam-converged``)."""
+    update that adds more than one factor (``bench_incremental``'s ``gtsam-converged``). Each check (untimed):
+    ``(poses, excess, agreement)``, :func:`isam2_check`."""
     import gtsam
 
     from benchmarks.bench_incremental import _converged_isam2, _isam2
@@ -155,36 +217,40 @@ def run_isam2(graph, check_every: int, threshold: float | None = None) -> dict:
     offsets = np.concatenate([[0], np.cumsum([f.count for f in graph.landmarks.observations])[:-1]]).astype(int).tolist()
     isam, seconds, checks, extra = _isam2(None, threshold), [], [], []
     to_matrix = lambda p: p.matrix()  # noqa: E731
-    for number, batch in enumerate(replay_batches(graph, 1), 1):
+    batches = list(replay_batches(graph, 1))
+    for number, batch in enumerate(batches, 1):
         start = time.perf_counter()
         factors = batch_factors(graph, batch, edge_factors, measured, offsets)
         values, pose = _initial_values(graph, batch, isam, to_matrix)
         if number == 1:
             noise = gtsam.noiseModel.Isotropic.Sigma(3, ANCHOR_SIGMA)
-            factors.add(gtsam.PriorFactorPose2(int(graph.ids[batch[0][0]]), values.atPose2(int(graph.ids[batch[0][0]])), noise))
+            prior = gtsam.PriorFactorPose2(int(graph.ids[batch[0][0]]), values.atPose2(int(graph.ids[batch[0][0]])), noise)
+            factors.add(prior)
         isam.update(factors, values)
         if threshold is not None and factors.size() > 1:
             extra.append(_converged_isam2(isam, isam.calculateEstimate())[1])
         else:
             isam.calculateEstimatePose2(int(graph.ids[batch[0][0]]))  # the latest pose, what a front end reads
         seconds.append(time.perf_counter() - start)
-        if number % check_every == 0 or number == graph.num_vertices:
-            checks.append((number, _isam2_excess(isam, isam.calculateEstimate())))
+        if _is_check(number, check_every, len(batches)):
+            checks.append((number, *isam2_check(graph, batches, number, isam, prior)))
     return {"seconds": seconds, "checks": checks, **({"extra_updates": int(np.sum(extra))} if threshold is not None else {})}
 
 
-def _isam2_excess(isam, estimate) -> float:
-    """Relative excess of ISAM2's estimate over gtsam's LM optimum of the same factors, started there."""
-    import gtsam
+def isam2_check(graph, batches: list, count: int, isam, prior) -> tuple[float, float]:
+    """``(excess, agreement)`` of ISAM2's estimate after ``count`` updates: its :func:`landmark_excess` on
+    :func:`landmark_prefix`, and ``|gtsam error − posegraph cost| / posegraph cost`` at that estimate, gtsam's
+    error being that of the factors ISAM2 holds without the anchoring ``prior`` (the two tools solve one problem
+    when it is ~1e-12)."""
+    from posegraph.crosscheck.gtsam_landmarks import landmark_key
 
-    factors = isam.getFactorsUnsafe()
-    params = gtsam.LevenbergMarquardtParams()
-    params.setRelativeErrorTol(1e-12)
-    params.setAbsoluteErrorTol(0.0)
-    params.setMaxIterations(200)
-    best = gtsam.LevenbergMarquardtOptimizer(factors, estimate, params).optimize()
-    ours, optimum = factors.error(estimate), factors.error(best)
-    return (ours - min(optimum, ours)) / max(min(optimum, ours), 1e-9)
+    estimate = isam.calculateEstimate()
+    held, vertices, landmarks = landmark_prefix(graph, batches, count)
+    poses = np.stack([estimate.atPose2(int(graph.ids[v])).matrix() for v in vertices.tolist()])
+    points = np.array([estimate.atPoint2(landmark_key(l)) for l in landmarks.tolist()]).reshape(-1, 2)
+    cost, excess = landmark_excess(held, poses, points)
+    error = isam.getFactorsUnsafe().error(estimate) - prior.error(estimate)
+    return excess, abs(error - cost) / max(cost, 1e-300)
 
 
 def worker(tool: str, name: str, check_every: int, threshold: float | None = None) -> dict:
@@ -195,10 +261,11 @@ def worker(tool: str, name: str, check_every: int, threshold: float | None = Non
     else:
         data = run_isam2(graph, check_every, threshold if tool == "gtsam-converged" else None)
     s, excess = np.asarray(data["seconds"]), np.array([c[1] for c in data["checks"]])
+    agreement = {"cost_agreement": max(c[2] for c in data["checks"])} if tool != "posegraph" else {}
     return {"tool": tool, "graph": name, "poses": graph.num_vertices, "landmarks": graph.landmarks.count,
             "measurements": int(graph.landmarks.num_measurements), "total": float(s.sum()), "mean": float(s.mean()),
             "p99": float(np.percentile(s, 99)), "max": float(s.max()), "excess_mean": float(excess.mean()),
-            "excess_max": float(excess.max()), "excess_end": float(excess[-1]), "checks": data["checks"],
+            "excess_max": float(excess.max()), "excess_end": float(excess[-1]), "checks": data["checks"], **agreement,
             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             **{k: data[k] for k in ("kinds", "extra_updates") if k in data}}
 
@@ -207,7 +274,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("files", nargs="*", default=list(DEFAULT_FILES), help="landmark files (gtsam:NAME: gtsam's bundled data)")
     parser.add_argument("--worker", nargs=2, metavar=("TOOL", "FILE"), help=argparse.SUPPRESS)
-    parser.add_argument("--check-every", type=int, default=500)
+    parser.add_argument("--check-every", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per process")
     parser.add_argument("--json", metavar="PATH")

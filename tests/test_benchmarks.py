@@ -256,3 +256,39 @@ def test_victoria_park_as_gtsam_reads_it_is_the_same_problem_for_both_tools(tmp_
     edges, measured = graph_to_gtsam(graph), landmark_factors(graph)
     counts = [bench.batch_factors(graph, batch, edges, measured, [0]).size() for batch in replay_batches(graph, 1)]
     assert sum(counts) == factors.size() == graph.num_edges + graph.landmarks.num_measurements
+
+
+def test_victoria_park_isam2_error_is_posegraphs_cost_on_the_same_prefix(tmp_path):
+    """The ISAM2 side of bench_incremental_landmarks on victoria_park.txt's first 300 poses: at each check
+    the error of the factors ISAM2 holds (without its anchoring prior) equals posegraph's cost of ISAM2's
+    estimate on :func:`landmark_prefix` to 1e-9 relative, and that prefix is the graph posegraph's replay
+    holds after as many updates (same counts, same cost at the replay's estimate)."""
+    pytest.importorskip("gtsam")
+    from benchmarks import bench_incremental_landmarks as bench
+    from posegraph.incremental.replay import replay, replay_batches
+    from posegraph.io.g2o import read_g2o
+    from posegraph.solve.objective import Objective
+
+    graph = read_g2o(bench.gtsam_problem_file(bench.file_path("gtsam:victoria_park.txt"), tmp_path / "problem.g2o"))
+    first, _, _ = bench.landmark_prefix(graph, list(replay_batches(graph, 1)), 300)
+    isam2 = bench.run_isam2(first, 100)
+    assert [c[0] for c in isam2["checks"]] == [100, 200, 300]
+    assert max(c[2] for c in isam2["checks"]) <= 1e-9
+    assert all(c[1] >= 0.0 for c in isam2["checks"])
+    batches, seen = list(replay_batches(first, 1)), {}
+
+    def at_150(result, number):
+        if number == 150:
+            opt = result.optimizer
+            held, vertices, landmarks = bench.landmark_prefix(first, batches, 150)
+            row = {int(i): r for r, i in enumerate(opt.landmark_ids.tolist())}
+            points = opt.landmark_positions[[row[int(i)] for i in held.landmarks.ids]]
+            theirs = opt.graph()
+            seen["counts"] = [(g.num_vertices, g.num_edges, g.landmarks.count, g.landmarks.num_measurements)
+                              for g in (held, theirs)]
+            seen["costs"] = (Objective(held).evaluate(opt.poses, points).cost,
+                             Objective(theirs).evaluate(theirs.poses, theirs.landmarks.positions).cost)
+
+    replay(first, 1, progress=at_150)
+    assert seen["counts"][0] == seen["counts"][1] and seen["counts"][0][3] > 0
+    assert seen["costs"][0] == pytest.approx(seen["costs"][1], rel=1e-12) and seen["costs"][1] > 0
