@@ -131,7 +131,7 @@ class IncrementalOptimizer:
         self.params = SolverParams() if params is None else params
         self._store = GraphStore(group)
         self._landmarks = LandmarkStore(group)
-        self._whole = WholeGraph(self._store, self.params.loss)
+        self._whole = WholeGraph(self._store, self.params.loss, self._landmarks)
         self._components = Components()
         self._covariances = Covariances(self._store, self._whole, lambda: self._components.held, self.held)
         self._terms = EdgeTerms()
@@ -404,9 +404,6 @@ class IncrementalOptimizer:
         if deferrable:
             return "bounded", 0, 0
         self._excess = None
-        if self._landmarks.count:  # the held analysis is of poses only
-            result = self._batch_solve()
-            return "full", int(np.count_nonzero(~self.held())), int(result.iterations)
         kind, vertices, iterations = self._solve_whole()
         if self.verify and kind != "full":
             self.optimize(method="gn")

@@ -42,7 +42,7 @@ class LastPoint:
         alone (``blocks`` None when none were kept); None when the kept ones do not apply (nothing kept,
         priors, a kept pose moved)."""
         graph, kept = objective.graph, self.poses
-        if kept is None or graph.priors is not None or poses.shape[0] < kept.shape[0]:
+        if kept is None or graph.priors is not None or graph.landmarks is not None or poses.shape[0] < kept.shape[0]:
             return None
         if not np.array_equal(poses[: kept.shape[0]], kept):
             return None

@@ -45,6 +45,7 @@ from dataclasses import replace
 import numpy as np
 
 from posegraph.incremental.held_factor import HeldFactor, LowRankTerms, edge_terms
+from posegraph.incremental.held_points import HeldPoints
 from posegraph.incremental.reuse import LastPoint
 from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
@@ -196,14 +197,16 @@ class WholeGraph:
     relinearise = RELINEARISE
     """Old edges re-linearised as low-rank pairs at each held step (0: none)."""
 
-    def __init__(self, store, loss=None):
+    def __init__(self, store, loss=None, landmarks=None):
         from posegraph.incremental.store import Rows
 
         self.store, self.loss = store, loss
         d = store.group.dim
+        self.points = None if landmarks is None else HeldPoints(landmarks, d)  # the landmarks' side of the analysis
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
         self.pattern = self.factor = self.held_factor = None
+        self.factored_sightings = (0, 0)  # _sightings() when the held factor was made
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
@@ -219,6 +222,8 @@ class WholeGraph:
         self.left_out = np.zeros(0, dtype=np.int64)
         self.last.clear()
         self.current = None
+        if self.points is not None:
+            self.points.reset()
 
     def _ready(self, held: np.ndarray) -> bool:
         """Scatter positions for every edge; False when the analysis no longer covers the graph: the
@@ -226,6 +231,8 @@ class WholeGraph:
         the pattern (those are left out of H: low-rank terms, :mod:`~posegraph.incremental.held_factor`)."""
         store, n = self.store, self.store.num_vertices
         if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
+            return False
+        if self.points is not None and not (self.points.covered() and self.points.place(self.pattern, self.keys)):
             return False
         done, m = self.hessian_at.n, store.num_edges
         if done < m:
@@ -252,9 +259,12 @@ class WholeGraph:
         pi, pj = _predicted(i, j, n, capacity, recent)
         self.held = np.zeros(capacity, dtype=bool)
         self.held[:n] = held
+        points = None if self.points is None else self.points.variables(n, capacity)
         self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d,
-                                                 positions=False)
+                                                 points=points, positions=False)
         self.keys, self.first = _off_keys(pattern)
+        if points is not None:
+            self.points.place(pattern, self.keys)
         self.held_factor = None
         self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, permutation=self._order(pattern))
         variable = pattern.variable_of
@@ -274,7 +284,11 @@ class WholeGraph:
         if factor is not None and factor.n == pattern.dimension and self.analyses % REORDER and factor._factorized:
             return factor.permutation
         order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
-        return block_permutation(order, pattern.block_size)
+        if not pattern.point_size:
+            return block_permutation(order, pattern.block_size)
+        sizes = pattern.sizes[order]  # blocks of two sizes: each variable's rows in the order's place
+        first = np.repeat(pattern.offsets[order] - (np.cumsum(sizes) - sizes), sizes)
+        return first + np.arange(pattern.dimension)
 
     def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
         """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
@@ -282,6 +296,13 @@ class WholeGraph:
         self.held_factor = None
         self.factor.factorize(data)
         self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
+        self.factored_sightings = self._sightings()
+
+    def _sightings(self) -> tuple[int, int]:
+        """``(points, measurements)`` of the landmarks so far."""
+        if self.points is None:
+            return 0, 0
+        return self.points.store.count, sum(f.count for f in self.points.store.families.values())
 
     def _prior_count(self) -> int:
         priors = self.store.priors()
@@ -325,6 +346,8 @@ class WholeGraph:
         held = self.held_factor
         if held is None or held.priors != self._prior_count() or (self.loss is not None and not held.weighted):
             return None
+        if self._sightings() != self.factored_sightings:
+            return None  # landmark measurements or points added since the factorisation
         if self.pattern.block_size * (n - held.vertices) > self.max_columns:
             return None  # more columns than allowed for sure (a long odometry run): not worth building them
         terms = self._low_rank(blocks, n)
@@ -370,27 +393,57 @@ class WholeGraph:
         vertices not yet added (``≥ n``) decoupled: unit diagonal, zero gradient (they have no edges)."""
         pattern = self.pattern
         size = pattern.dimension
-        g = np.bincount(self.gradient_at.view.ravel(), weights=blocks.gradient.ravel(), minlength=size + 1)[:size]
+        g = np.bincount(self.gradient_at.view.ravel(), weights=blocks.gradient.ravel(), minlength=size + 1)[:size].astype(np.float64, copy=False)  # no edges: int zeros
         if blocks.priors is not None:
             add_prior_gradient(pattern, g, blocks.priors)
         if not hessian:
+            if blocks.landmarks is not None:
+                self.points.add(pattern, g, None, blocks.landmarks)
             return None, g
         values = np.stack(blocks.hessian_blocks, axis=1)  # (m, 3, d, d), as hessian_at
-        data = np.bincount(self.hessian_at.view.ravel(), weights=values.ravel(), minlength=pattern.nnz + 1)
+        data = np.bincount(self.hessian_at.view.ravel(), weights=values.ravel(), minlength=pattern.nnz + 1).astype(np.float64, copy=False)
         if blocks.priors is not None:
             add_prior_hessian(pattern, data, blocks.priors)
         future = pattern.variable_of[n:]
         rows = (pattern.block_size * future[future >= 0][:, None] + np.arange(pattern.block_size)).ravel()
+        if pattern.point_size:
+            self.points.add(pattern, g, data, blocks.landmarks)
+            rows = np.concatenate([rows, self.points.decoupled_rows(pattern)])
         data[pattern.diagonal[rows]] = 1.0
         return data[: pattern.nnz], g
 
     def _objective(self, held: np.ndarray) -> Objective:
         """The solver's objective on the whole graph so far (views of the store, no copies)."""
         s = self.store
+        landmarks = None if self.points is None else self.points.store.landmarks()
         graph = PoseGraph(ids=s.ids.view, poses=s.poses.view, edge_from=s.edge_from.view, edge_to=s.edge_to.view,
                           measurements=s.measurements.view, information=s.information.view, fixed=held,
-                          group=s.group, priors=s.priors())
+                          group=s.group, priors=s.priors(), landmarks=landmarks)
         return Objective(graph, self.loss)
+
+    def _state(self) -> tuple:
+        """Copies of the poses ``(n, k, k)`` and the landmarks' points ``(L, s)`` (None without)."""
+        points = self._points()
+        return self.store.poses.view.copy(), None if points is None else points.copy()
+
+    def _points(self) -> np.ndarray | None:
+        """The landmarks' points ``(L, s)`` (the store's rows, live), None without landmarks."""
+        return None if self.points is None or not self.points.store.count else self.points.store.positions.view
+
+    def _restore(self, state: tuple) -> None:
+        self.store.poses.view[:] = state[0]
+        if state[1] is not None:
+            self._points()[:] = state[1]
+
+    def _move(self, state: tuple, step: np.ndarray, scale: float) -> None:
+        """Poses and points at ``state`` moved by ``scale`` times the step ``(D,)``: ``X exp(δ)``, ``p + δ``."""
+        poses, points = state
+        self.store.poses.view[:] = poses @ self.store.group.exp(scale * self.pattern.expand(step)[: poses.shape[0]])
+        if points is not None:
+            self._points()[:] = points + scale * self.pattern.expand_points(step)[: points.shape[0]]
+
+    def _evaluate(self, objective: Objective):
+        return objective.evaluate(self.store.poses.view, self._points())
 
     def solve(self, held: np.ndarray, tolerance: float, max_iterations: int = 30,
               predicted_stop: bool = False) -> tuple[bool, int, np.ndarray]:
@@ -409,9 +462,9 @@ class WholeGraph:
             self._analyse(held)
         n, d = self.store.num_vertices, self.store.group.dim
         objective, poses = self._objective(held), self.store.poses.view
-        saved = poses.copy()
+        saved = self._state()
         start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
-        evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
+        evaluation, blocks = start if start is not None else (self._evaluate(objective), None)
         self.last.clear()
         self.current, self.decrement = None, np.inf
         refactor, previous = False, np.inf
@@ -420,7 +473,7 @@ class WholeGraph:
                 blocks = objective.linearize(poses, evaluation)
             g, terms, made_here = self._system_at(blocks, held, n, refactor)
             if g is None:
-                poses[:] = saved
+                self._restore(saved)
                 return False, iteration, np.zeros(0)
             half = self.held_factor.forward(g, terms)
             decrement = half.decrement
@@ -437,7 +490,7 @@ class WholeGraph:
                 refactor = True  # the held step raised the cost: refactorise at this point (its blocks as they are)
                 continue
             if trial is None:
-                poses[:] = saved
+                self._restore(saved)
                 return False, iteration, np.zeros(0)
             if outcome == "backtracked":
                 refactor, previous, evaluation, blocks = True, np.inf, trial, None  # far from the optimum still
@@ -458,17 +511,16 @@ class WholeGraph:
         (poses restored) when a held step raised it; ``"backtracked"`` when a step on a factor made here did,
         with the evaluation of the halved step that lowered the cost (:meth:`_backtrack`; None, poses
         restored, when none did)."""
-        poses = self.store.poses.view
         step = -self.held_factor.backward(half)
         self.held_steps += not made_here
-        before = poses.copy()
-        poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
-        trial = objective.evaluate(poses) if half.decrement > 0 else None
+        before = self._state()
+        self._move(before, step, 1.0)
+        trial = self._evaluate(objective) if half.decrement > 0 else None
         if trial is not None and trial.cost <= cost * (1 + 1e-12):
             if not made_here:
                 self._chord_outcome(True)
             return "taken", trial
-        poses[:] = before
+        self._restore(before)
         if not made_here:
             self._chord_outcome(False)
             return "refactor", None
@@ -482,7 +534,7 @@ class WholeGraph:
         they need is made here, where the linearisation at those poses is at hand. With a loss, the
         solve's H carries IRLS weights that the covariance convention leaves out."""
         wanted, self.covariance_wanted = self.covariance_wanted, False
-        if not wanted or self.loss is not None:
+        if not wanted or self.loss is not None or self._points() is not None:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
             self.held_factor.cover(self.held_factor.terms.columns)  # the left-out edges' path solves here, not in the call
@@ -496,18 +548,16 @@ class WholeGraph:
     def _chord_outcome(self, accepted: bool) -> None:
         self.chord_odds += (float(accepted) - self.chord_odds) / 8
 
-    def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
+    def _backtrack(self, objective: Objective, before: tuple, step: np.ndarray, n: int, cost: float):
         """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the
         step halved up to BACKTRACK times, the first that lowers the cost kept (its evaluation), else
         None with the poses as ``before``. Cheaper than handing the graph to the damped batch solver."""
-        poses, group = self.store.poses.view, self.store.group
-        tangent = self.pattern.expand(step)[:n]
         for halving in range(1, BACKTRACK + 1):
-            poses[:] = before @ group.exp(tangent * 0.5**halving)
-            trial = objective.evaluate(poses)
+            self._move(before, step, 0.5**halving)
+            trial = self._evaluate(objective)
             if trial.cost < cost:
                 return trial
-        poses[:] = before
+        self._restore(before)
         return None
 
     def _terms(self, objective: Objective, evaluation) -> np.ndarray:

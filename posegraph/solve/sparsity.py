@@ -82,6 +82,9 @@ class HessianPattern:
     family_positions: tuple = ()
     """Per landmark family (:class:`PointFamily`): ``(hessian, gradient)`` scatter maps
     (:func:`_family_positions`), in the order of ``PointVariables.families``."""
+    placement: "_System | None" = None
+    """With ``positions=False``: where the entries of factors placed later go (:meth:`_System.pair_positions`,
+    :meth:`_System.diagonal_positions`, :meth:`_System.rows`), for a caller that places them itself."""
 
     @property
     def dimension(self) -> int:
@@ -183,6 +186,7 @@ def analyze_pattern(
         point_variable_of=point_variable_of,
         point_size=points.size,
         family_positions=tuple(_family_positions(system, a, b, d, points.size) for a, b in families),
+        placement=None if positions else system,
     )
 
 

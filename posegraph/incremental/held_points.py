@@ -1,0 +1,138 @@
+"""Landmarks in the held analysis of :mod:`posegraph.incremental.whole`.
+
+The analysis gives the points variables of their own block size ``s`` (2 or 3), numbered after every
+pose variable of its capacity, for a capacity of points too (×GROWTH the landmark count, at least
+FUTURE_POINTS more): the points not yet added, and those no measurement reaches yet, are decoupled as
+the poses to come are (unit diagonal, zero gradient). Besides the pose–point blocks of every
+measurement so far it holds the blocks the next sightings are likely to need, so that most of them
+cost only their scatter positions: the poses of the next AHEAD vertices joined to every landmark seen
+by the last RECENT poses and to the points to come. A measurement whose block is missing, a capacity
+exceeded or a ``FIX`` flag changed makes a new analysis.
+
+Scatter positions come from the pattern's own placement (:attr:`HessianPattern.placement
+<posegraph.solve.sparsity.HessianPattern.placement>`: ``pair_positions`` for a pose–point measurement,
+``diagonal_positions`` for a point prior), kept per family in the store's order, and the families'
+blocks (:func:`posegraph.solve.landmark_terms.linearize_landmarks`, raveled ``[H_pp, H_ll, H_pl]``)
+are added with one ``np.bincount`` each.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posegraph.incremental.store import Rows
+from posegraph.solve.sparsity import PointFamily, PointVariables
+
+__all__ = ["HeldPoints", "AHEAD", "RECENT", "FUTURE_POINTS"]
+
+AHEAD = 24
+"""Poses to come whose blocks with the recently seen landmarks (and the points to come) an analysis adds."""
+
+RECENT = 8
+"""A landmark seen by one of the last this many poses counts as recently seen."""
+
+FUTURE_POINTS = 16
+"""Point capacity beyond the landmark count (at least); the first of them get predicted blocks."""
+
+
+class HeldPoints:
+    """The landmark side of the held analysis: ``store`` the optimiser's
+    :class:`~posegraph.incremental.landmark_store.LandmarkStore`, ``d`` the poses' block size."""
+
+    def __init__(self, store, d: int):
+        self.store, self.d, self.s = store, d, store.group.space_dim
+        self.capacity = 0
+        self.fixed = np.zeros(0, dtype=bool)  # FIX flags the analysis was made with, (capacity,)
+        self.placed: dict = {}  # (kind, tag) -> (hessian positions Rows, gradient rows Rows)
+
+    def reset(self) -> None:
+        self.placed = {}
+
+    def covered(self) -> bool:
+        """Whether the analysis's points still fit: count within capacity, ``FIX`` flags as analysed."""
+        count = self.store.count
+        return count <= self.capacity and np.array_equal(self.store.fixed.view, self.fixed[:count])
+
+    def variables(self, n: int, pose_capacity: int) -> PointVariables | None:
+        """The points for a new analysis at ``n`` poses of capacity ``pose_capacity`` (module docstring);
+        None without landmarks."""
+        count = self.store.count
+        self.placed = {}
+        if count == 0:
+            self.capacity, self.fixed = 0, np.zeros(0, dtype=bool)
+            return None
+        self.capacity = max(int(1.1 * count) + 1, count + FUTURE_POINTS)
+        self.fixed = np.zeros(self.capacity, dtype=bool)
+        self.fixed[:count] = self.store.fixed.view
+        pose, point = self.store.observed_pairs()
+        ahead_pose, ahead_point = self._predicted(pose, point, n, pose_capacity)
+        family = PointFamily(np.concatenate([pose, ahead_pose]), np.concatenate([point, ahead_point]))
+        return PointVariables(self.capacity, self.s, self.fixed, (family,))
+
+    def _predicted(self, pose: np.ndarray, point: np.ndarray, n: int, pose_capacity: int):
+        """``(pose, point)`` pairs predicted: poses ``n .. n+AHEAD−1`` with the landmarks seen by the last
+        RECENT poses and with the first FUTURE_POINTS points to come."""
+        recent = np.unique(point[pose >= n - RECENT])
+        count = self.store.count
+        points = np.concatenate([recent, np.arange(count, min(count + FUTURE_POINTS, self.capacity))])
+        poses = np.arange(n, min(n + AHEAD, pose_capacity))
+        return np.repeat(poses, points.shape[0]), np.tile(points, poses.shape[0])
+
+    def place(self, pattern, keys: np.ndarray) -> bool:
+        """Scatter positions of the measurements not yet placed; False when one's pose–point block is not
+        in ``pattern`` (``keys``: sorted ``col·p + row`` of its off-diagonal blocks)."""
+        d, s, at = self.d, self.s, pattern.placement
+        for key, family in self.store.families.items():
+            if key not in self.placed:
+                width = s * s if family.kind == "prior" else d * d + s * s + d * s
+                self.placed[key] = (Rows((width,), np.int64), Rows((s if family.kind == "prior" else d + s,), np.int64))
+            hessian, gradient = self.placed[key]
+            start = hessian.n
+            if start == family.count:
+                continue
+            point = pattern.point_variable_of[family.landmark.view[start:]]
+            if family.kind == "prior":
+                hessian.extend(at.diagonal_positions(point, s))
+                gradient.extend(at.rows(point, s))
+                continue
+            pose = pattern.variable_of[family.pose.view[start:]]
+            both = (pose >= 0) & (point >= 0)
+            wanted = pose[both] * pattern.num_variables + point[both]
+            slot = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
+            if wanted.shape[0] and (keys.shape[0] == 0 or np.any(keys[slot] != wanted)):
+                return False
+            hessian.extend(np.concatenate(at.pair_positions(pose, point, d, s), axis=1))
+            gradient.extend(np.concatenate([at.rows(pose, d), at.rows(point, s)], axis=1))
+        return True
+
+    def _positions(self):
+        """Per family with measurements (the order of ``Landmarks.observations``): the Hessian positions in
+        the order of :class:`~posegraph.solve.landmark_terms.LandmarkBlocks` and the gradient rows."""
+        d, s = self.d, self.s
+        for key, family in self.store.families.items():
+            if not family.count:
+                continue
+            hessian, gradient = (rows.view for rows in self.placed[key])
+            if family.kind != "prior":
+                hessian = np.concatenate([hessian[:, : d * d].ravel(), hessian[:, d * d : d * d + s * s].ravel(),
+                                          hessian[:, d * d + s * s :].ravel()])
+            yield hessian.ravel(), gradient.ravel()
+
+    def add(self, pattern, g: np.ndarray, data: np.ndarray | None, blocks) -> None:
+        """Add the families' ``blocks`` (:class:`~posegraph.solve.landmark_terms.LandmarkBlocks`) into ``g``
+        ``(D,)`` and, unless None, the lower-CSC ``data`` ``(nnz,)`` (in place)."""
+        size, nnz = pattern.dimension, pattern.nnz
+        for (hessian, gradient), h, r in zip(self._positions(), blocks.hessian, blocks.gradient):
+            g += np.bincount(gradient, weights=r.ravel(), minlength=size + 1)[:size]
+            if data is not None:
+                data[:nnz] += np.bincount(hessian, weights=h, minlength=nnz + 1)[:nnz]
+
+    def decoupled_rows(self, pattern) -> np.ndarray:
+        """Rows of the point variables no measurement reaches (points to come, points not yet seen)."""
+        s = self.s
+        seen = np.zeros(self.capacity, dtype=bool)
+        for family in self.store.families.values():
+            seen[family.landmark.view] = True
+        variable = pattern.point_variable_of[~seen]
+        variable = variable[variable >= 0]
+        return (pattern.offsets[variable][:, None] + np.arange(s)).ravel()
