@@ -35,6 +35,24 @@ FUTURE_POINTS = 16
 """Point capacity beyond the landmark count (at least); the first of them get predicted blocks."""
 
 
+def _diagonal(at, variables: np.ndarray, z: int) -> np.ndarray:
+    """``(q, z²)`` data positions of the diagonal blocks of ``variables`` (size ``z``; −1: held, ``nnz``),
+    the upper halves ``nnz``: ``_System.diagonal_slots`` for these few variables alone (its
+    ``diagonal_positions`` tabulates every variable of the pattern, O(p) a call)."""
+    a, b = np.repeat(np.arange(z), z), np.tile(np.arange(z), z)
+    slots = at.diagonal_slots(np.maximum(variables, 0), z)
+    return np.where((variables >= 0)[:, None] & (a >= b), slots, at.nnz)
+
+
+def _crossed(at, both: np.ndarray, slot: np.ndarray, d: int, s: int) -> np.ndarray:
+    """``(q, d·s)`` data positions of ``H_pose,point`` (row-major), ``nnz`` where a variable is held: the
+    block sits at (point, pose), points being numbered after the poses, entry ``(a, b)`` at ``(b, a)``
+    (``slot`` ``(w,)``: the stored blocks of the measurements where ``both`` ``(q,)``)."""
+    out = np.full((both.shape[0], d * s), at.nnz, dtype=np.int64)
+    out[both] = at.off_slots(slot, s, d).reshape(-1, s, d).swapaxes(1, 2).reshape(-1, d * s)
+    return out
+
+
 class HeldPoints:
     """The landmark side of the held analysis: ``store`` the optimiser's
     :class:`~posegraph.incremental.landmark_store.LandmarkStore`, ``d`` the poses' block size."""
@@ -92,7 +110,7 @@ class HeldPoints:
                 continue
             point = pattern.point_variable_of[family.landmark.view[start:]]
             if family.kind == "prior":
-                hessian.extend(at.diagonal_positions(point, s))
+                hessian.extend(_diagonal(at, point, s))
                 gradient.extend(at.rows(point, s))
                 continue
             pose = pattern.variable_of[family.pose.view[start:]]
@@ -101,7 +119,7 @@ class HeldPoints:
             slot = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
             if wanted.shape[0] and (keys.shape[0] == 0 or np.any(keys[slot] != wanted)):
                 return False
-            hessian.extend(np.concatenate(at.pair_positions(pose, point, d, s), axis=1))
+            hessian.extend(np.concatenate([_diagonal(at, pose, d), _diagonal(at, point, s), _crossed(at, both, slot, d, s)], axis=1))
             gradient.extend(np.concatenate([at.rows(pose, d), at.rows(point, s)], axis=1))
         return True
 

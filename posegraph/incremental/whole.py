@@ -215,6 +215,7 @@ class WholeGraph:
         self.analyses = self.factorizations = self.corrections = self.chord_chances = self.held_steps = 0
         self.chord_odds = 1.0  # moving share of held steps that lowered the cost
         self.decrement = np.inf  # ½ gᵀH⁻¹g at the end of the last solve that met its tolerance
+        self.unary_cost = 0.0  # the priors' and landmark measurements' cost at the end of the last solve (_terms)
 
     def reset(self) -> None:
         self.pattern = self.factor = self.held_factor = None
@@ -561,8 +562,12 @@ class WholeGraph:
         return None
 
     def _terms(self, objective: Objective, evaluation) -> np.ndarray:
+        """Each edge's ``eᵀΩe`` (``ρ`` of it) at ``evaluation``; the rest of its cost (priors, landmark
+        measurements) kept in ``unary_cost``, which spares the optimiser evaluating them again."""
         s = squared_norms(evaluation.residuals, objective.information)
-        return s if self.loss is None else self.loss.rho(s)
+        terms = s if self.loss is None else self.loss.rho(s)
+        self.unary_cost = max(evaluation.cost - 0.5 * float(np.sum(terms)), 0.0)
+        return terms
 
     def factorize_unweighted(self, held: np.ndarray) -> None:
         """Factorise H at the current poses on the held analysis, without loss weights and priors
