@@ -464,7 +464,7 @@ class WholeGraph:
         n, d = self.store.num_vertices, self.store.group.dim
         objective, poses = self._objective(held), self.store.poses.view
         saved = self._state()
-        start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
+        start = self.last.extended(objective, poses, self._points())  # the last solve's final linearisation, new terms added
         evaluation, blocks = start if start is not None else (self._evaluate(objective), None)
         self.last.clear()
         self.current, self.decrement = None, np.inf
