@@ -25,10 +25,10 @@ from posegraph.solve.sparsity import PointFamily, PointVariables
 
 __all__ = ["HeldPoints", "AHEAD", "RECENT", "FUTURE_POINTS"]
 
-AHEAD = 24
+AHEAD = 64
 """Poses to come whose blocks with the recently seen landmarks (and the points to come) an analysis adds."""
 
-RECENT = 8
+RECENT = 32
 """A landmark seen by one of the last this many poses counts as recently seen."""
 
 FUTURE_POINTS = 16
