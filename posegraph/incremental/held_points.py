@@ -62,6 +62,8 @@ class HeldPoints:
         self.capacity = 0
         self.fixed = np.zeros(0, dtype=bool)  # FIX flags the analysis was made with, (capacity,)
         self.placed: dict = {}  # (kind, tag) -> (hessian positions Rows, gradient rows Rows)
+        self.held_counts: dict = {}  # (kind, tag) -> measurements in the held factor (factored)
+        self.held_decoupled = np.zeros(0, dtype=np.int64)  # rows of the points the held factor decoupled
 
     def reset(self) -> None:
         self.placed = {}
@@ -145,6 +147,32 @@ class HeldPoints:
             if data is not None:
                 data[:nnz] += np.bincount(hessian, weights=h, minlength=nnz + 1)[:nnz]
 
+    def factored(self, pattern) -> None:
+        """Remember what a numeric factorisation made now holds: each family's count, the decoupled rows."""
+        self.held_counts = {key: family.count for key, family in self.store.families.items()}
+        self.held_decoupled = self.decoupled_rows(pattern)
+
+    def terms(self, pattern, terms, blocks):
+        """``terms`` with the landmark measurements added since the factorisation (:meth:`factored`) as
+        low-rank terms, at their linearisation ``blocks`` (``LandmarkBlocks``), minus the unit diagonal of
+        the points the factor decoupled that measurements reach now."""
+        d, s = self.d, self.s
+        columns, values = [], []
+        for (key, family), h in zip(((k, f) for k, f in self.store.families.items() if f.count), blocks.hessian):
+            start = self.held_counts.get(key, 0)
+            if start < family.count:
+                columns.append(self.placed[key][1].view[start:])
+                values.append(_measurement_blocks(family, h, d, s, start))
+        unit = np.setdiff1d(self.held_decoupled, self.decoupled_rows(pattern))
+        if not columns and not unit.shape[0]:
+            return terms
+        width = max((c.shape[1] for c in columns), default=s)
+        columns = [np.pad(c, ((0, 0), (0, width - c.shape[1])), constant_values=pattern.dimension) for c in columns]
+        values = [np.pad(v, ((0, 0), (0, width - v.shape[1]), (0, width - v.shape[1]))) for v in values]
+        empty = (np.zeros((0, width), np.int64), np.zeros((0, width, width)))
+        return with_landmark_terms(terms, np.concatenate(columns) if columns else empty[0],
+                                   np.concatenate(values) if values else empty[1], unit, pattern.dimension)
+
     def decoupled_rows(self, pattern) -> np.ndarray:
         """Rows of the point variables no measurement reaches (points to come, points not yet seen)."""
         s = self.s
@@ -154,3 +182,36 @@ class HeldPoints:
         variable = pattern.point_variable_of[~seen]
         variable = variable[variable >= 0]
         return (pattern.offsets[variable][:, None] + np.arange(s)).ravel()
+
+
+def _measurement_blocks(family, h: np.ndarray, d: int, s: int, start: int) -> np.ndarray:
+    """``(q', c, c)`` the full Hessian of each measurement from row ``start`` of ``family``, from its raveled
+    blocks ``h`` (``[H_pp, H_ll, H_pl]``; priors ``H_ll``): ``[[H_pp, H_pl], [H_plᵀ, H_ll]]``, c = d + s (priors s)."""
+    q = family.count
+    if family.kind == "prior":
+        return h.reshape(q, s, s)[start:]
+    pp = h[: q * d * d].reshape(q, d, d)[start:]
+    ll = h[q * d * d : q * (d * d + s * s)].reshape(q, s, s)[start:]
+    pl = h[q * (d * d + s * s) :].reshape(q, d, s)[start:]
+    return np.concatenate([np.concatenate([pp, pl], axis=2), np.concatenate([np.swapaxes(pl, 1, 2), ll], axis=2)], axis=1)
+
+
+def with_landmark_terms(terms, columns: np.ndarray, values: np.ndarray, unit: np.ndarray, dimension: int):
+    """``terms`` (:class:`~posegraph.incremental.held_factor.LowRankTerms`) plus measurements' Hessians
+    ``values`` ``(q, c, c)`` on scalar columns ``columns`` ``(q, c)`` (``dimension``: held, left out) minus
+    the unit diagonal of rows ``unit`` (points decoupled in the factor, reached by a measurement since)."""
+    from posegraph.incremental.held_factor import LowRankTerms
+
+    valid = columns < dimension
+    union = np.unique(np.concatenate([terms.columns, columns[valid], unit]))
+    q = union.shape[0]
+    matrix = np.zeros((q, q))
+    old = np.searchsorted(union, terms.columns)
+    matrix[np.ix_(old, old)] = terms.matrix
+    at = np.searchsorted(union, np.where(valid, columns, union[-1] if q else 0))
+    both = valid[:, :, None] & valid[:, None, :]
+    flat = (at[:, :, None] * q + at[:, None, :])[both]
+    matrix += np.bincount(flat, weights=values[both], minlength=q * q).reshape(q, q)
+    diagonal = np.searchsorted(union, unit)
+    matrix[diagonal, diagonal] -= 1.0
+    return LowRankTerms(union, matrix)

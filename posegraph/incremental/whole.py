@@ -29,9 +29,16 @@ what does not change between updates is kept:
   of a factorisation's work, priors were added, a new analysis was made, or held steps kept failing
   (CHORD_ODDS). The stopping test is ``½ gᵀH̃⁻¹g ≤ tolerance · cost`` at the current point (the excess
   over the optimum, to second order), so accuracy rests on the exact gradient.
+* **Landmarks** (:mod:`posegraph.incremental.held_points`). The analysis gives the points variables of
+  their own block size after the poses', for a capacity of points too, with the pose–point blocks of
+  every measurement and those the next sightings are likely to need; a landmark update is Gauss-Newton
+  here like a loop closure, the points retracted ``p + δ`` with the poses. A measurement whose block is
+  missing makes a new analysis (no left-out landmark terms), and so do landmark measurements or points
+  added since the held factor was made: the step refactorises (they are not low-rank terms yet).
 * **The last linearisation.** A solve ends linearised at its final point; the next one starts from
-  that evaluation and linearisation with only the new edges computed (:mod:`posegraph.incremental.reuse`),
-  as long as no old pose moved in between (odometry is placed by composition) and there are no priors.
+  that evaluation and linearisation with only the new edges and landmark measurements computed
+  (:mod:`posegraph.incremental.reuse`), as long as no old pose or point moved in between (odometry and
+  first sightings are placed exactly) and there are no priors.
 
 Each step's cost is the exact one (:class:`posegraph.solve.objective.Objective`, losses and priors
 included); a step that raises it restores the poses (after a held step: a refactorised step is tried;
@@ -206,7 +213,6 @@ class WholeGraph:
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
         self.pattern = self.factor = self.held_factor = None
-        self.factored_sightings = (0, 0)  # _sightings() when the held factor was made
         self.left_out = np.zeros(0, dtype=np.int64)  # edges (store order) whose H_ij is outside the pattern
         self.held = np.zeros(0, dtype=bool)
         self.last = LastPoint()
@@ -297,13 +303,8 @@ class WholeGraph:
         self.held_factor = None
         self.factor.factorize(data)
         self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
-        self.factored_sightings = self._sightings()
-
-    def _sightings(self) -> tuple[int, int]:
-        """``(points, measurements)`` of the landmarks so far."""
-        if self.points is None:
-            return 0, 0
-        return self.points.store.count, sum(f.count for f in self.points.store.families.values())
+        if self.pattern.point_size:
+            self.points.factored(self.pattern)
 
     def _prior_count(self) -> int:
         priors = self.store.priors()
@@ -326,7 +327,8 @@ class WholeGraph:
         parts += _prior_changes(blocks, held.blocks, variable)
         new = variable[held.vertices : n]
         self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
-        return edge_terms(parts, self.pattern.block_size, new[new >= 0])
+        terms = edge_terms(parts, self.pattern.block_size, new[new >= 0])
+        return self.points.terms(self.pattern, terms, blocks.landmarks) if self.pattern.point_size else terms
 
     def _drifted(self, blocks) -> np.ndarray:
         """Up to ``relinearise`` edges in H0 (store order) whose residual moved most since it was made
@@ -347,8 +349,6 @@ class WholeGraph:
         held = self.held_factor
         if held is None or held.priors != self._prior_count() or (self.loss is not None and not held.weighted):
             return None
-        if self._sightings() != self.factored_sightings:
-            return None  # landmark measurements or points added since the factorisation
         if self.pattern.block_size * (n - held.vertices) > self.max_columns:
             return None  # more columns than allowed for sure (a long odometry run): not worth building them
         terms = self._low_rank(blocks, n)
@@ -476,7 +476,13 @@ class WholeGraph:
             if g is None:
                 self._restore(saved)
                 return False, iteration, np.zeros(0)
-            half = self.held_factor.forward(g, terms)
+            try:
+                half = self.held_factor.forward(g, terms)
+            except np.linalg.LinAlgError:  # the held system with its terms is singular (a point seen by a lone bearing)
+                if made_here:
+                    raise
+                refactor = True
+                continue
             decrement = half.decrement
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.decrement = decrement
