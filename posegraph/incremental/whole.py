@@ -33,8 +33,9 @@ what does not change between updates is kept:
   their own block size after the poses', for a capacity of points too, with the pose–point blocks of
   every measurement and those the next sightings are likely to need; a landmark update is Gauss-Newton
   here like a loop closure, the points retracted ``p + δ`` with the poses. A measurement whose block is
-  missing makes a new analysis (no left-out landmark terms), and so do landmark measurements or points
-  added since the held factor was made: the step refactorises (they are not low-rank terms yet).
+  missing makes a new analysis (no left-out landmark terms). The measurements added since the held
+  factor was made are low-rank terms of it (their full pose–point Hessians, minus the unit diagonal of
+  the points it decoupled): a re-sighting is a held step, not a factorisation.
 * **The last linearisation.** A solve ends linearised at its final point; the next one starts from
   that evaluation and linearisation with only the new edges and landmark measurements computed
   (:mod:`posegraph.incremental.reuse`), as long as no old pose or point moved in between (odometry and

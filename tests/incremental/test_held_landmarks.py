@@ -158,3 +158,47 @@ def _gradient(objective, graph, points, pattern) -> np.ndarray:
         add_prior_gradient(pattern, g, blocks.priors)
     add_landmark_gradient(pattern, g, blocks.landmarks)
     return g
+
+
+def test_measurements_since_the_factor_are_exact_low_rank_terms():
+    """H without the last measurements of each family (as a factor made before them holds it) plus the
+    landmark terms is H with them: the terms carry every entry of the new measurements' Hessians, and take
+    back the unit diagonal of a point first reached by them."""
+    from posegraph.incremental.held_factor import LowRankTerms
+    from posegraph.solve.landmark_terms import LandmarkBlocks
+
+    graph = _graph("SE2-bearing-range", seed=6)
+    opt = replay(graph, optimizer=IncrementalOptimizer(graph.group, tolerance=TIGHT)).optimizer
+    whole, held = opt._whole, opt.held()
+    assert whole._ready(held)
+    objective = whole._objective(held)
+    poses, points = opt.poses, opt.landmark_positions
+    blocks = objective.linearize(poses, objective.evaluate(poses, points))
+    full, _ = whole._system(blocks, opt.num_vertices, True)
+    family = next(iter(whole.points.store.families.values()))
+    last = int(family.landmark.view[-1])
+    since = np.flatnonzero(family.landmark.view == last)  # every measurement of one landmark: its point unreached
+    keep = np.ones(family.count, dtype=bool)
+    keep[since] = False
+    d, s = graph.group.dim, graph.group.space_dim
+    h = blocks.landmarks.hessian[0]
+    q = family.count
+    parts = [h[: q * d * d].reshape(q, -1), h[q * d * d : q * (d * d + s * s)].reshape(q, -1), h[q * (d * d + s * s) :].reshape(q, -1)]
+    before = LandmarkBlocks((np.concatenate([(p * keep[:, None]).ravel() for p in parts]),), blocks.landmarks.gradient)
+    partial, _ = whole._system(replace(blocks, landmarks=before), opt.num_vertices, True)
+    point_rows = whole.pattern.offsets[whole.pattern.point_variable_of[last]] + np.arange(s)
+    partial[whole.pattern.diagonal[point_rows]] = 1.0  # the factor made before decoupled the point
+    # the measurements of that landmark come last in the terms' view: reorder the family so they do
+    order = np.concatenate([np.flatnonzero(keep), since])
+    for rows in whole.points.placed[next(iter(whole.points.placed))]:
+        rows.data[: q] = rows.view[order]
+    reordered = [p[order] for p in parts]
+    blocks_now = LandmarkBlocks((np.concatenate([p.ravel() for p in reordered]),), blocks.landmarks.gradient)
+    key = next(iter(whole.points.store.families))
+    whole.points.held_counts = {key: q - since.shape[0]}
+    whole.points.held_decoupled = np.concatenate([whole.points.decoupled_rows(whole.pattern), point_rows])
+    terms = whole.points.terms(whole.pattern, LowRankTerms.empty(), blocks_now)
+    expected = _dense(whole.pattern, full)
+    got = _dense(whole.pattern, partial)
+    got[np.ix_(terms.columns, terms.columns)] += terms.matrix
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
