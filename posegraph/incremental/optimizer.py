@@ -382,6 +382,8 @@ class IncrementalOptimizer:
                 self._excess = None  # a removal can lower the optimum: the bound is lost
             before = self.cost() if self._excess is not None else None
             touched, landmark_work, placed = commit_batch(self, batch)
+            if landmark_work or batch.pose_priors or batch.position_priors:
+                self._unary = None  # terms that need not vanish were added to that part of the cost
             kind, vertices, iterations = self._solve(touched, landmark_work, self._defer_if_bounded(batch, before))
             if kind == "whole":
                 self._unary = self._whole.unary_cost  # the solve's final evaluation less its edges' terms

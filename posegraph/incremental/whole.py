@@ -357,15 +357,19 @@ class WholeGraph:
         return terms if count <= self.max_columns and held.affordable(count, BREAK_EVEN) else None
 
     def _system_at(self, blocks, held: np.ndarray, n: int, refactor: bool):
-        """``(g, terms, made_here)`` for a step at ``blocks``: on the held factor with its low-rank terms
-        unless ``refactor`` or it cannot serve (:meth:`_held_terms`), else on a fresh factorisation
-        (``made_here``); ``g`` None when H is not positive definite."""
+        """``(half, made_here)`` for a step at ``blocks``: the forward half (:meth:`HeldFactor.forward`) on
+        the held factor with its low-rank terms unless ``refactor`` or it cannot serve (:meth:`_held_terms`,
+        or the held system with its terms is singular: a point seen by a lone bearing), else on a fresh
+        factorisation (``made_here``); ``half`` None when H is not positive definite."""
         if not refactor:
             terms = self._held_terms(blocks, n)
             if terms is not None:
-                return self._system(blocks, n, False)[1], terms, False
+                try:
+                    return self.held_factor.forward(self._system(blocks, n, False)[1], terms), False
+                except np.linalg.LinAlgError:
+                    pass
         g = self._fresh(blocks, held, n)
-        return g, None if g is None else self.held_factor.terms, True
+        return None if g is None else self.held_factor.forward(g, self.held_factor.terms), True
 
     def _fresh(self, blocks, held: np.ndarray, n: int, weighted: bool = True) -> np.ndarray | None:
         """H assembled and factorised at ``blocks``, held with its terms at ``blocks`` (the left-out
@@ -473,17 +477,10 @@ class WholeGraph:
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
                 blocks = objective.linearize(poses, evaluation)
-            g, terms, made_here = self._system_at(blocks, held, n, refactor)
-            if g is None:
+            half, made_here = self._system_at(blocks, held, n, refactor)
+            if half is None:
                 self._restore(saved)
                 return False, iteration, np.zeros(0)
-            try:
-                half = self.held_factor.forward(g, terms)
-            except np.linalg.LinAlgError:  # the held system with its terms is singular (a point seen by a lone bearing)
-                if made_here:
-                    raise
-                refactor = True
-                continue
             decrement = half.decrement
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.decrement = decrement
