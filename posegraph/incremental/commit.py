@@ -99,6 +99,7 @@ def commit_batch(opt, batch) -> tuple[list[int], bool, np.ndarray]:
             for v in vertices.tolist():
                 touched += components.anchor_by_prior(v, store.fixed.view)
     if batch.landmark_removals:  # before the batch's new measurements go in
+        opt._whole.reset()  # the scatter positions follow the measurements' order
         touched += opt._landmarks.remove(np.concatenate(batch.landmark_removals)).tolist()
     released, landmark_work = commit_landmarks(opt, batch) if batch.landmarks or batch.landmark_measurements else ([], False)
     touched += released

@@ -7,8 +7,8 @@ Design (``docs/incremental.md``):
   (a *tree* edge) has a zero residual and adds nothing to the gradient: a batch made only of such edges
   (odometry) leaves the estimate at the optimum of the new graph exactly, with no linear algebra.
 * **Gauss-Newton on the whole graph, its analysis held** (:mod:`posegraph.incremental.whole`). Every
-  other edge, a prior, a removed edge or an anchor released by a join runs Gauss-Newton on the whole
-  graph with the block pattern and CHOLMOD's symbolic factorisation kept from update to update; a fresh
+  other edge, a prior, a landmark measurement that is not a first sighting, a removed edge or an anchor
+  released by a join runs Gauss-Newton on the whole graph (landmarks' points included) with the block pattern and CHOLMOD's symbolic factorisation kept from update to update; a fresh
   step that raises the cost even halved six times, or 30 steps short of the tolerance, hand the update
   to the batch solver (:func:`posegraph.solve.optimize`, LM, warm), and so does a *drastic* update
   from the start (:data:`DRASTIC`).
@@ -131,7 +131,7 @@ class IncrementalOptimizer:
         self.params = SolverParams() if params is None else params
         self._store = GraphStore(group)
         self._landmarks = LandmarkStore(group)
-        self._whole = WholeGraph(self._store, self.params.loss)
+        self._whole = WholeGraph(self._store, self.params.loss, self._landmarks)
         self._components = Components()
         self._covariances = Covariances(self._store, self._whole, lambda: self._components.held, self.held)
         self._terms = EdgeTerms()
@@ -382,8 +382,12 @@ class IncrementalOptimizer:
                 self._excess = None  # a removal can lower the optimum: the bound is lost
             before = self.cost() if self._excess is not None else None
             touched, landmark_work, placed = commit_batch(self, batch)
+            if landmark_work or batch.pose_priors or batch.position_priors:
+                self._unary = None  # terms that need not vanish were added to that part of the cost
             kind, vertices, iterations = self._solve(touched, landmark_work, self._defer_if_bounded(batch, before))
-            if kind != "exact" or batch.pose_priors or batch.position_priors:
+            if kind == "whole":
+                self._unary = self._whole.unary_cost  # the solve's final evaluation less its edges' terms
+            elif kind != "exact" or batch.pose_priors or batch.position_priors:
                 # an exact update moves nothing and adds landmark terms that vanish (first sightings); else re-evaluate
                 self._unary = None
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
@@ -404,9 +408,6 @@ class IncrementalOptimizer:
         if deferrable:
             return "bounded", 0, 0
         self._excess = None
-        if self._landmarks.count:  # the held analysis is of poses only
-            result = self._batch_solve()
-            return "full", int(np.count_nonzero(~self.held())), int(result.iterations)
         kind, vertices, iterations = self._solve_whole()
         if self.verify and kind != "full":
             self.optimize(method="gn")

@@ -29,9 +29,17 @@ what does not change between updates is kept:
   of a factorisation's work, priors were added, a new analysis was made, or held steps kept failing
   (CHORD_ODDS). The stopping test is ``½ gᵀH̃⁻¹g ≤ tolerance · cost`` at the current point (the excess
   over the optimum, to second order), so accuracy rests on the exact gradient.
+* **Landmarks** (:mod:`posegraph.incremental.held_points`). The analysis gives the points variables of
+  their own block size after the poses', for a capacity of points too, with the pose–point blocks of
+  every measurement and those the next sightings are likely to need; a landmark update is Gauss-Newton
+  here like a loop closure, the points retracted ``p + δ`` with the poses. A measurement whose block is
+  missing makes a new analysis (no left-out landmark terms). The measurements added since the held
+  factor was made are low-rank terms of it (their full pose–point Hessians, minus the unit diagonal of
+  the points it decoupled): a re-sighting is a held step, not a factorisation.
 * **The last linearisation.** A solve ends linearised at its final point; the next one starts from
-  that evaluation and linearisation with only the new edges computed (:mod:`posegraph.incremental.reuse`),
-  as long as no old pose moved in between (odometry is placed by composition) and there are no priors.
+  that evaluation and linearisation with only the new edges and landmark measurements computed
+  (:mod:`posegraph.incremental.reuse`), as long as no old pose or point moved in between (odometry and
+  first sightings are placed exactly) and there are no priors.
 
 Each step's cost is the exact one (:class:`posegraph.solve.objective.Objective`, losses and priors
 included); a step that raises it restores the poses (after a held step: a refactorised step is tried;
@@ -45,6 +53,7 @@ from dataclasses import replace
 import numpy as np
 
 from posegraph.incremental.held_factor import HeldFactor, LowRankTerms, edge_terms
+from posegraph.incremental.held_points import HeldPoints
 from posegraph.incremental.reuse import LastPoint
 from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
@@ -196,11 +205,12 @@ class WholeGraph:
     relinearise = RELINEARISE
     """Old edges re-linearised as low-rank pairs at each held step (0: none)."""
 
-    def __init__(self, store, loss=None):
+    def __init__(self, store, loss=None, landmarks=None):
         from posegraph.incremental.store import Rows
 
         self.store, self.loss = store, loss
         d = store.group.dim
+        self.points = None if landmarks is None else HeldPoints(landmarks, d)  # the landmarks' side of the analysis
         self.hessian_at = Rows((3, d * d), np.int64)  # per edge, store order
         self.gradient_at = Rows((2, d), np.int64)
         self.pattern = self.factor = self.held_factor = None
@@ -212,6 +222,7 @@ class WholeGraph:
         self.analyses = self.factorizations = self.corrections = self.chord_chances = self.held_steps = 0
         self.chord_odds = 1.0  # moving share of held steps that lowered the cost
         self.decrement = np.inf  # ½ gᵀH⁻¹g at the end of the last solve that met its tolerance
+        self.unary_cost = 0.0  # the priors' and landmark measurements' cost at the end of the last solve (_terms)
 
     def reset(self) -> None:
         self.pattern = self.factor = self.held_factor = None
@@ -219,6 +230,8 @@ class WholeGraph:
         self.left_out = np.zeros(0, dtype=np.int64)
         self.last.clear()
         self.current = None
+        if self.points is not None:
+            self.points.reset()
 
     def _ready(self, held: np.ndarray) -> bool:
         """Scatter positions for every edge; False when the analysis no longer covers the graph: the
@@ -226,6 +239,8 @@ class WholeGraph:
         the pattern (those are left out of H: low-rank terms, :mod:`~posegraph.incremental.held_factor`)."""
         store, n = self.store, self.store.num_vertices
         if self.pattern is None or n > self.pattern.num_vertices or not np.array_equal(held, self.held[:n]):
+            return False
+        if self.points is not None and not (self.points.covered() and self.points.place(self.pattern, self.keys)):
             return False
         done, m = self.hessian_at.n, store.num_edges
         if done < m:
@@ -252,9 +267,12 @@ class WholeGraph:
         pi, pj = _predicted(i, j, n, capacity, recent)
         self.held = np.zeros(capacity, dtype=bool)
         self.held[:n] = held
+        points = None if self.points is None else self.points.variables(n, capacity)
         self.pattern = pattern = analyze_pattern(capacity, np.concatenate([i, pi]), np.concatenate([j, pj]), self.held, d,
-                                                 positions=False)
+                                                 points=points, positions=False)
         self.keys, self.first = _off_keys(pattern)
+        if points is not None:
+            self.points.place(pattern, self.keys)
         self.held_factor = None
         self.factor = SparseCholesky(pattern.indptr, pattern.indices, pattern.dimension, permutation=self._order(pattern))
         variable = pattern.variable_of
@@ -274,7 +292,11 @@ class WholeGraph:
         if factor is not None and factor.n == pattern.dimension and self.analyses % REORDER and factor._factorized:
             return factor.permutation
         order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
-        return block_permutation(order, pattern.block_size)
+        if not pattern.point_size:
+            return block_permutation(order, pattern.block_size)
+        sizes = pattern.sizes[order]  # blocks of two sizes: each variable's rows in the order's place
+        first = np.repeat(pattern.offsets[order] - (np.cumsum(sizes) - sizes), sizes)
+        return first + np.arange(pattern.dimension)
 
     def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
         """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
@@ -282,6 +304,8 @@ class WholeGraph:
         self.held_factor = None
         self.factor.factorize(data)
         self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
+        if self.pattern.point_size:
+            self.points.factored(self.pattern)
 
     def _prior_count(self) -> int:
         priors = self.store.priors()
@@ -304,7 +328,8 @@ class WholeGraph:
         parts += _prior_changes(blocks, held.blocks, variable)
         new = variable[held.vertices : n]
         self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
-        return edge_terms(parts, self.pattern.block_size, new[new >= 0])
+        terms = edge_terms(parts, self.pattern.block_size, new[new >= 0])
+        return self.points.terms(self.pattern, terms, blocks.landmarks) if self.pattern.point_size else terms
 
     def _drifted(self, blocks) -> np.ndarray:
         """Up to ``relinearise`` edges in H0 (store order) whose residual moved most since it was made
@@ -332,15 +357,19 @@ class WholeGraph:
         return terms if count <= self.max_columns and held.affordable(count, BREAK_EVEN) else None
 
     def _system_at(self, blocks, held: np.ndarray, n: int, refactor: bool):
-        """``(g, terms, made_here)`` for a step at ``blocks``: on the held factor with its low-rank terms
-        unless ``refactor`` or it cannot serve (:meth:`_held_terms`), else on a fresh factorisation
-        (``made_here``); ``g`` None when H is not positive definite."""
+        """``(half, made_here)`` for a step at ``blocks``: the forward half (:meth:`HeldFactor.forward`) on
+        the held factor with its low-rank terms unless ``refactor`` or it cannot serve (:meth:`_held_terms`,
+        or the held system with its terms is singular: a point seen by a lone bearing), else on a fresh
+        factorisation (``made_here``); ``half`` None when H is not positive definite."""
         if not refactor:
             terms = self._held_terms(blocks, n)
             if terms is not None:
-                return self._system(blocks, n, False)[1], terms, False
+                try:
+                    return self.held_factor.forward(self._system(blocks, n, False)[1], terms), False
+                except np.linalg.LinAlgError:
+                    pass
         g = self._fresh(blocks, held, n)
-        return g, None if g is None else self.held_factor.terms, True
+        return None if g is None else self.held_factor.forward(g, self.held_factor.terms), True
 
     def _fresh(self, blocks, held: np.ndarray, n: int, weighted: bool = True) -> np.ndarray | None:
         """H assembled and factorised at ``blocks``, held with its terms at ``blocks`` (the left-out
@@ -370,27 +399,57 @@ class WholeGraph:
         vertices not yet added (``≥ n``) decoupled: unit diagonal, zero gradient (they have no edges)."""
         pattern = self.pattern
         size = pattern.dimension
-        g = np.bincount(self.gradient_at.view.ravel(), weights=blocks.gradient.ravel(), minlength=size + 1)[:size]
+        g = np.bincount(self.gradient_at.view.ravel(), weights=blocks.gradient.ravel(), minlength=size + 1)[:size].astype(np.float64, copy=False)  # no edges: int zeros
         if blocks.priors is not None:
             add_prior_gradient(pattern, g, blocks.priors)
         if not hessian:
+            if blocks.landmarks is not None:
+                self.points.add(pattern, g, None, blocks.landmarks)
             return None, g
         values = np.stack(blocks.hessian_blocks, axis=1)  # (m, 3, d, d), as hessian_at
-        data = np.bincount(self.hessian_at.view.ravel(), weights=values.ravel(), minlength=pattern.nnz + 1)
+        data = np.bincount(self.hessian_at.view.ravel(), weights=values.ravel(), minlength=pattern.nnz + 1).astype(np.float64, copy=False)
         if blocks.priors is not None:
             add_prior_hessian(pattern, data, blocks.priors)
         future = pattern.variable_of[n:]
         rows = (pattern.block_size * future[future >= 0][:, None] + np.arange(pattern.block_size)).ravel()
+        if pattern.point_size:
+            self.points.add(pattern, g, data, blocks.landmarks)
+            rows = np.concatenate([rows, self.points.decoupled_rows(pattern)])
         data[pattern.diagonal[rows]] = 1.0
         return data[: pattern.nnz], g
 
     def _objective(self, held: np.ndarray) -> Objective:
         """The solver's objective on the whole graph so far (views of the store, no copies)."""
         s = self.store
+        landmarks = None if self.points is None else self.points.store.landmarks()
         graph = PoseGraph(ids=s.ids.view, poses=s.poses.view, edge_from=s.edge_from.view, edge_to=s.edge_to.view,
                           measurements=s.measurements.view, information=s.information.view, fixed=held,
-                          group=s.group, priors=s.priors())
+                          group=s.group, priors=s.priors(), landmarks=landmarks)
         return Objective(graph, self.loss)
+
+    def _state(self) -> tuple:
+        """Copies of the poses ``(n, k, k)`` and the landmarks' points ``(L, s)`` (None without)."""
+        points = self._points()
+        return self.store.poses.view.copy(), None if points is None else points.copy()
+
+    def _points(self) -> np.ndarray | None:
+        """The landmarks' points ``(L, s)`` (the store's rows, live), None without landmarks."""
+        return None if self.points is None or not self.points.store.count else self.points.store.positions.view
+
+    def _restore(self, state: tuple) -> None:
+        self.store.poses.view[:] = state[0]
+        if state[1] is not None:
+            self._points()[:] = state[1]
+
+    def _move(self, state: tuple, step: np.ndarray, scale: float) -> None:
+        """Poses and points at ``state`` moved by ``scale`` times the step ``(D,)``: ``X exp(δ)``, ``p + δ``."""
+        poses, points = state
+        self.store.poses.view[:] = poses @ self.store.group.exp(scale * self.pattern.expand(step)[: poses.shape[0]])
+        if points is not None:
+            self._points()[:] = points + scale * self.pattern.expand_points(step)[: points.shape[0]]
+
+    def _evaluate(self, objective: Objective):
+        return objective.evaluate(self.store.poses.view, self._points())
 
     def solve(self, held: np.ndarray, tolerance: float, max_iterations: int = 30,
               predicted_stop: bool = False) -> tuple[bool, int, np.ndarray]:
@@ -409,20 +468,19 @@ class WholeGraph:
             self._analyse(held)
         n, d = self.store.num_vertices, self.store.group.dim
         objective, poses = self._objective(held), self.store.poses.view
-        saved = poses.copy()
-        start = self.last.extended(objective, poses)  # the last solve's final linearisation, new edges added
-        evaluation, blocks = start if start is not None else (objective.evaluate(poses), None)
+        saved = self._state()
+        start = self.last.extended(objective, poses, self._points())  # the last solve's final linearisation, new terms added
+        evaluation, blocks = start if start is not None else (self._evaluate(objective), None)
         self.last.clear()
         self.current, self.decrement = None, np.inf
         refactor, previous = False, np.inf
         for iteration in range(1, max_iterations + 1):
             if blocks is None:
                 blocks = objective.linearize(poses, evaluation)
-            g, terms, made_here = self._system_at(blocks, held, n, refactor)
-            if g is None:
-                poses[:] = saved
+            half, made_here = self._system_at(blocks, held, n, refactor)
+            if half is None:
+                self._restore(saved)
                 return False, iteration, np.zeros(0)
-            half = self.held_factor.forward(g, terms)
             decrement = half.decrement
             if 0 <= decrement <= tolerance * evaluation.cost + 1e-300:
                 self.decrement = decrement
@@ -437,7 +495,7 @@ class WholeGraph:
                 refactor = True  # the held step raised the cost: refactorise at this point (its blocks as they are)
                 continue
             if trial is None:
-                poses[:] = saved
+                self._restore(saved)
                 return False, iteration, np.zeros(0)
             if outcome == "backtracked":
                 refactor, previous, evaluation, blocks = True, np.inf, trial, None  # far from the optimum still
@@ -458,17 +516,16 @@ class WholeGraph:
         (poses restored) when a held step raised it; ``"backtracked"`` when a step on a factor made here did,
         with the evaluation of the halved step that lowered the cost (:meth:`_backtrack`; None, poses
         restored, when none did)."""
-        poses = self.store.poses.view
         step = -self.held_factor.backward(half)
         self.held_steps += not made_here
-        before = poses.copy()
-        poses[:] = poses @ self.store.group.exp(self.pattern.expand(step)[:n])
-        trial = objective.evaluate(poses) if half.decrement > 0 else None
+        before = self._state()
+        self._move(before, step, 1.0)
+        trial = self._evaluate(objective) if half.decrement > 0 else None
         if trial is not None and trial.cost <= cost * (1 + 1e-12):
             if not made_here:
                 self._chord_outcome(True)
             return "taken", trial
-        poses[:] = before
+        self._restore(before)
         if not made_here:
             self._chord_outcome(False)
             return "refactor", None
@@ -482,7 +539,7 @@ class WholeGraph:
         they need is made here, where the linearisation at those poses is at hand. With a loss, the
         solve's H carries IRLS weights that the covariance convention leaves out."""
         wanted, self.covariance_wanted = self.covariance_wanted, False
-        if not wanted or self.loss is not None:
+        if not wanted or self.loss is not None or self._points() is not None:
             return
         if fresh or self._fresh(blocks, held, n) is not None:
             self.held_factor.cover(self.held_factor.terms.columns)  # the left-out edges' path solves here, not in the call
@@ -496,23 +553,25 @@ class WholeGraph:
     def _chord_outcome(self, accepted: bool) -> None:
         self.chord_odds += (float(accepted) - self.chord_odds) / 8
 
-    def _backtrack(self, objective: Objective, before: np.ndarray, step: np.ndarray, n: int, cost: float):
+    def _backtrack(self, objective: Objective, before: tuple, step: np.ndarray, n: int, cost: float):
         """A fresh Gauss-Newton step overshot (a large loop closure far from the linearisation): the
         step halved up to BACKTRACK times, the first that lowers the cost kept (its evaluation), else
         None with the poses as ``before``. Cheaper than handing the graph to the damped batch solver."""
-        poses, group = self.store.poses.view, self.store.group
-        tangent = self.pattern.expand(step)[:n]
         for halving in range(1, BACKTRACK + 1):
-            poses[:] = before @ group.exp(tangent * 0.5**halving)
-            trial = objective.evaluate(poses)
+            self._move(before, step, 0.5**halving)
+            trial = self._evaluate(objective)
             if trial.cost < cost:
                 return trial
-        poses[:] = before
+        self._restore(before)
         return None
 
     def _terms(self, objective: Objective, evaluation) -> np.ndarray:
+        """Each edge's ``eᵀΩe`` (``ρ`` of it) at ``evaluation``; the rest of its cost (priors, landmark
+        measurements) kept in ``unary_cost``, which spares the optimiser evaluating them again."""
         s = squared_norms(evaluation.residuals, objective.information)
-        return s if self.loss is None else self.loss.rho(s)
+        terms = s if self.loss is None else self.loss.rho(s)
+        self.unary_cost = max(evaluation.cost - 0.5 * float(np.sum(terms)), 0.0)
+        return terms
 
     def factorize_unweighted(self, held: np.ndarray) -> None:
         """Factorise H at the current poses on the held analysis, without loss weights and priors

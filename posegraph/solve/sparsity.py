@@ -82,6 +82,9 @@ class HessianPattern:
     family_positions: tuple = ()
     """Per landmark family (:class:`PointFamily`): ``(hessian, gradient)`` scatter maps
     (:func:`_family_positions`), in the order of ``PointVariables.families``."""
+    placement: "_System | None" = None
+    """With ``positions=False``: where the entries of factors placed later go (:meth:`_System.pair_positions`,
+    :meth:`_System.diagonal_positions`, :meth:`_System.rows`), for a caller that places them itself."""
 
     @property
     def dimension(self) -> int:
@@ -162,7 +165,7 @@ def analyze_pattern(
     binary = [(a, b) for a, b in families if a is not None]
     blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
     system = _scalar_layout(blocks, sizes, offsets)
-    layout = system.layout
+    layout, placement = system.layout, None if positions else system
     hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz) if positions else None
     rows = np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1) if positions else None
     gradient_positions = _narrowest(rows, system.dimension) if positions else None
@@ -182,7 +185,7 @@ def analyze_pattern(
         offsets=offsets,
         point_variable_of=point_variable_of,
         point_size=points.size,
-        family_positions=tuple(_family_positions(system, a, b, d, points.size) for a, b in families),
+        family_positions=tuple(_family_positions(system, a, b, d, points.size) for a, b in families), placement=placement,
     )
 
 
