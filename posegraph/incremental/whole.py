@@ -292,11 +292,7 @@ class WholeGraph:
         if factor is not None and factor.n == pattern.dimension and self.analyses % REORDER and factor._factorized:
             return factor.permutation
         order = fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
-        if not pattern.point_size:
-            return block_permutation(order, pattern.block_size)
-        sizes = pattern.sizes[order]  # blocks of two sizes: each variable's rows in the order's place
-        first = np.repeat(pattern.offsets[order] - (np.cumsum(sizes) - sizes), sizes)
-        return first + np.arange(pattern.dimension)
+        return block_permutation(order, pattern.sizes if pattern.point_size else pattern.block_size)  # (points: two sizes)
 
     def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
         """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
