@@ -81,7 +81,7 @@ class HessianPattern:
     """The landmarks' block size ``s`` (0 for a pose graph)."""
     family_positions: tuple = ()
     """Per landmark family (:class:`PointFamily`): ``(hessian, gradient)`` scatter maps
-    (:func:`_family_positions`), in the order of ``PointVariables.families``."""
+    (:func:`_family_positions`), in the order of ``PointVariables.families``; empty with ``positions=False``."""
     placement: "_System | None" = None
     """With ``positions=False``: where the entries of factors placed later go (:meth:`_System.pair_positions`,
     :meth:`_System.diagonal_positions`, :meth:`_System.rows`), for a caller that places them itself."""
@@ -146,7 +146,8 @@ def analyze_pattern(
         Landmark variables (``s``-sized blocks, numbered after the poses) and the families of
         measurements joining them to poses (:class:`PointVariables`); None: a pose graph.
     positions : bool
-        False: no per-edge scatter maps (None), for a caller that places edges itself (``incremental.whole``).
+        False: no per-edge scatter maps (None) nor the families' (empty), for a caller that places them itself
+        (``incremental.whole``, through ``placement``).
     """
     n, d = int(num_vertices), int(block_size)
     ei = np.asarray(edge_from, dtype=np.int64)
@@ -158,17 +159,15 @@ def analyze_pattern(
         raise ValueError("edges joining a vertex to itself are not supported")
     points = PointVariables.none() if points is None else points
     variable_of, point_variable_of, sizes = _number_variables(held, points, d)
-    p = sizes.size
-    offsets = np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
+    p, offsets = sizes.size, np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
     ci, cj = variable_of[ei], variable_of[ej]
     families = [(variable_of[f.pose] if f.pose is not None else None, point_variable_of[f.point]) for f in points.families]
     binary = [(a, b) for a, b in families if a is not None]
     blocks = _block_pattern(np.concatenate([ci] + [a for a, _ in binary]), np.concatenate([cj] + [b for _, b in binary]), p)
     system = _scalar_layout(blocks, sizes, offsets)
     layout, placement = system.layout, None if positions else system
-    hessian_positions = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz) if positions else None
-    rows = np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1) if positions else None
-    gradient_positions = _narrowest(rows, system.dimension) if positions else None
+    hessian_positions, gradient_positions, family_positions = (
+        _scatter_maps(system, ci, cj, d, families, points.size) if positions else (None, None, ()))
     return HessianPattern(
         num_vertices=n,
         variable_of=variable_of,
@@ -185,8 +184,17 @@ def analyze_pattern(
         offsets=offsets,
         point_variable_of=point_variable_of,
         point_size=points.size,
-        family_positions=tuple(_family_positions(system, a, b, d, points.size) for a, b in families), placement=placement,
+        family_positions=family_positions,
+        placement=placement,
     )
+
+
+def _scatter_maps(system: "_System", ci: np.ndarray, cj: np.ndarray, d: int, families: list, s: int) -> tuple:
+    """``(hessian_positions, gradient_positions, family_positions)`` of :class:`HessianPattern`: where the
+    edges joining variables ``ci``, ``cj`` and each landmark family's measurements put their entries."""
+    hessian = _narrowest(np.stack(system.pair_positions(ci, cj, d, d)).reshape(3, -1), system.nnz)
+    rows = np.stack([system.rows(ci, d), system.rows(cj, d)], axis=1).reshape(-1)
+    return hessian, _narrowest(rows, system.dimension), tuple(_family_positions(system, a, b, d, s) for a, b in families)
 
 
 @dataclass(frozen=True, eq=False)
