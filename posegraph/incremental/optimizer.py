@@ -387,7 +387,7 @@ class IncrementalOptimizer:
             kind, vertices, iterations = self._solve(touched, landmark_work, self._defer_if_bounded(batch, before))
             if kind == "whole":
                 self._unary = self._whole.unary_cost  # the solve's final evaluation less its edges' terms
-            elif kind != "exact" or batch.pose_priors or batch.position_priors:
+            elif kind != "exact":
                 # an exact update moves nothing and adds landmark terms that vanish (first sightings); else re-evaluate
                 self._unary = None
             info = UpdateInfo(kind, time.perf_counter() - start, vertices, iterations, self.cost())
