@@ -33,9 +33,12 @@ manhattan, torus, garage, sphere at 5 %).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from posegraph.robust.losses import Cauchy
 
 __all__ = ["SuspiciousEdges", "suspicious_edges", "BROKEN_GAIN", "STANDOUT", "SCREEN", "LEVEL_MULTIPLE", "ROUNDS",
            "MIN_LOOP_CLOSURES"]
@@ -101,19 +104,6 @@ class SuspiciousEdges:
                 "edges": self.rows(graph, limit)}
 
 
-class _Cauchy:
-    """Cauchy's loss of ``s = eᵀΩe`` with scale ``c2`` (a :class:`posegraph.solve.objective.Loss`)."""
-
-    def __init__(self, c2: float):
-        self.c2 = float(c2)
-
-    def rho(self, s):
-        return self.c2 * np.log1p(np.asarray(s, dtype=np.float64) / self.c2)
-
-    def weight(self, s):
-        return self.c2 / (self.c2 + np.asarray(s, dtype=np.float64))
-
-
 def suspicious_edges(graph, poses, params=None) -> SuspiciousEdges:
     """Judge the edges of ``graph`` at ``poses`` ``(n, k, k)`` (a least-squares optimum) against each other.
 
@@ -165,7 +155,7 @@ def _refit_chi2(graph, poses, chi2, loops, params) -> np.ndarray:
         level = float(np.median(chi2[loops]))
         if not level > 0:  # the loop closures agree exactly: nothing to down-weight against
             break
-        round_params = replace(base, loss=_Cauchy(LEVEL_MULTIPLE * level), max_iterations=ITERATIONS_PER_ROUND,
+        round_params = replace(base, loss=Cauchy(math.sqrt(LEVEL_MULTIPLE * level)), max_iterations=ITERATIONS_PER_ROUND,
                                relative_tolerance=REFIT_TOLERANCE)
         poses = optimize(graph, initial=poses, params=round_params, analysis=analysis).poses
         chi2 = edge_chi2(graph, poses)
