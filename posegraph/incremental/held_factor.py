@@ -59,23 +59,23 @@ def edge_terms(parts, d: int, unit: np.ndarray | None = None) -> LowRankTerms:
     its new blocks and the negated old ones) of edges joining block columns ``ci``, ``cj`` ``(p,)`` (−1:
     held, no block)."""
     unit = np.zeros(0, dtype=np.int64) if unit is None else unit
-    ends = [c[c >= 0] for part in parts for c in part[3:]]
-    variables = np.unique(np.concatenate([*ends, unit]))
+    h_ii, h_jj, h_ij, ci, cj = (np.concatenate(arrays) for arrays in zip(*parts))
+    i_in, j_in = ci >= 0, cj >= 0
+    variables = np.unique(np.concatenate([ci[i_in], cj[j_in], unit]))
     q = d * variables.shape[0]
-    at = lambda c: d * np.searchsorted(variables, c)[:, None] + np.arange(d)  # noqa: E731
-    flat, values = [], []  # one bincount: np.add.at is ~10× slower on these small scatters
-    for h_ii, h_jj, h_ij, ci, cj in parts:
-        i_in, j_in = ci >= 0, cj >= 0
-        both = i_in & j_in
-        ri, rj, bi, bj = at(ci[i_in]), at(cj[j_in]), at(ci[both]), at(cj[both])
-        for rows, columns, block in ((ri, ri, h_ii[i_in]), (rj, rj, h_jj[j_in]), (bi, bj, h_ij[both]),
-                                     (bj, bi, np.swapaxes(h_ij[both], 1, 2))):
-            flat.append((q * rows[:, :, None] + columns[:, None, :]).ravel())
-            values.append(block.ravel())
-    diagonal = at(unit).ravel()
-    flat.append(diagonal * (q + 1))
-    values.append(-np.ones(diagonal.shape[0]))
-    matrix = np.bincount(np.concatenate(flat), np.concatenate(values), minlength=q * q).reshape(q, q)
+    if q == 0:
+        return LowRankTerms.empty()  # every end held
+    at = lambda c: d * np.searchsorted(variables, c)[..., None] + np.arange(d)  # noqa: E731
+    # A held end takes slot 0 with its blocks zeroed: they add nothing, and no masked copies are made.
+    ri, rj = at(np.where(i_in, ci, variables[:1])), at(np.where(j_in, cj, variables[:1]))
+    both = (i_in & j_in)[:, None, None]
+    rows, columns = np.stack([ri, rj, ri, rj]), np.stack([ri, rj, rj, ri])  # (4, p, d)
+    values = np.stack([h_ii * i_in[:, None, None], h_jj * j_in[:, None, None], h_ij * both,
+                       np.swapaxes(h_ij, 1, 2) * both])  # (4, p, d, d)
+    diagonal = at(unit).ravel() * (q + 1)
+    flat = np.concatenate([(q * rows[..., :, None] + columns[..., None, :]).ravel(), diagonal])
+    weights = np.concatenate([values.ravel(), -np.ones(diagonal.shape[0])])
+    matrix = np.bincount(flat, weights, minlength=q * q).reshape(q, q)  # np.add.at is ~10× slower here
     return LowRankTerms((d * variables[:, None] + np.arange(d)).ravel(), matrix)
 
 
