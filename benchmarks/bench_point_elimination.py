@@ -1,0 +1,137 @@
+"""Point elimination on landmark graphs against today's CHOLMOD (AMD) path, side by side (issue 44).
+
+    python -m benchmarks.bench_point_elimination [--data DIR] [--rounds N] [--files NAME ...] [--out FILE.json]
+
+Per file: the start is made once (the solver's own: :func:`posegraph.solve.file_start.start_poses`, the
+landmarks placed from it, the central pose held as :func:`posegraph.solve.optimizer.optimize` holds it);
+then each variant's analysis (its linear solver built once: ordering, symbolic factorisation, gathers),
+and ``--rounds`` rounds of LM from that start, the variants alternating (the order rotates each round).
+Variants (:mod:`benchmarks.point_elimination`): ``amd`` (today's path: CHOLMOD, AMD of the variable
+graph), ``points-first`` (CHOLMOD, every point eliminated first), ``schur`` (the explicit Schur
+complement on the points). Reported per variant: seconds to build its linear solver, LM seconds (median), the summed
+factorise and solve phases, LM iterations and factorisations, the final cost's relative difference
+from ``amd``'s, and the flops of one factorisation (CHOLMOD's supernodes; ``schur``: of ``S``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.point_elimination import PointsFirstCholmod, SchurComplementSolver
+
+DATA = Path(__file__).resolve().parents[2] / "data-landmarks"
+FILES = ("dlr.g2o", "victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
+         "world-2000-lownoise-full.g2o.gz")  # fmt: skip
+VARIANTS = {"amd": None, "points-first": PointsFirstCholmod, "schur": SchurComplementSolver}
+
+
+def prepared(path: Path):
+    """``(graph in the solver's gauge, start poses, start points)`` as :func:`optimize` makes them."""
+    import posegraph
+    from posegraph.init.landmarks import initialize_landmarks
+    from posegraph.solve.file_start import start_poses
+    from posegraph.solve.gauge import central_anchors
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # tags posegraph does not read (g2o_frontend's feature lines)
+        graph = posegraph.read_g2o(path)
+    poses = start_poses(graph, "chordal")
+    points, _ = initialize_landmarks(graph, poses)
+    gauge = central_anchors(graph, poses)
+    return (graph if gauge is None else gauge[0]), poses, points
+
+
+def analyses(graph) -> dict:
+    """Per variant ``(analysis, seconds to build its linear solver)``: today's :func:`analyze`, its
+    solver replaced (the pattern's analysis, common to all, is not counted; no order remembered)."""
+    from posegraph.linalg import cholmod as cholmod_library
+    from posegraph.solve.linear import CholmodSolver
+    from posegraph.solve.optimizer import analyze
+
+    analysis = analyze(graph)
+    out = {}
+    for name, solver in VARIANTS.items():
+        cholmod_library._LAST_ORDERS.clear()
+        start = time.perf_counter()
+        made = CholmodSolver(analysis.pattern) if solver is None else solver(analysis.pattern)
+        out[name] = (replace(analysis, solver=made), time.perf_counter() - start)
+    return out
+
+
+def factor_flops(solver) -> float | None:
+    """Flops of the solver's last CHOLMOD factorisation (``schur``: of ``S``)."""
+    return solver._cholesky.factor_flops
+
+
+def measure(path: Path, rounds: int) -> dict:
+    """The figures of one file (module docstring)."""
+    from posegraph.solve.optimizer import optimize
+
+    graph, poses, points = prepared(path)
+    made = analyses(graph)
+    runs = {name: [] for name in VARIANTS}
+    names = list(VARIANTS)
+    for number in range(rounds):
+        for name in names[number % len(names):] + names[: number % len(names)]:
+            result = optimize(graph, poses, analysis=made[name][0], initial_points=points)
+            runs[name].append(result)
+    reference = runs["amd"][0].final_cost
+    rows = {}
+    for name, results in runs.items():
+        last = results[-1]
+        rows[name] = {
+            "solver_build_s": made[name][1],
+            "lm_s": statistics.median(r.seconds_total for r in results),
+            "factorize_s": statistics.median(sum(x.seconds_factorize for x in r.records) for r in results),
+            "solve_s": statistics.median(sum(x.seconds_solve for x in r.records) for r in results),
+            "iterations": last.iterations,
+            "factorisations": sum(x.attempts for x in last.records),
+            "cost_relative": abs(last.final_cost - reference) / abs(reference),
+            "mflop": factor_flops(made[name][0].solver) / 1e6,
+        }
+    return rows
+
+
+def table(figures: dict) -> str:
+    """A markdown table of :func:`measure`'s figures, one row per file and variant."""
+    lines = ["| file | variant | solver built s | LM s | factorise s | solve s | iterations (factorisations) | cost vs amd | Mflop / factorisation |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for file, rows in figures.items():
+        for name, row in rows.items():
+            lines.append(
+                f"| {file} | {name} | {row['solver_build_s']:.3f} | {row['lm_s']:.3f} | {row['factorize_s']:.3f} | "
+                f"{row['solve_s']:.3f} | {row['iterations']} ({row['factorisations']}) | {row['cost_relative']:.1e} | {row['mflop']:.1f} |"
+            )  # fmt: skip
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--files", nargs="*", default=list(FILES))
+    parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
+    args = parser.parse_args(argv)
+    figures = {}
+    for name in args.files:
+        path = args.data / name
+        if not path.is_file():
+            print(f"{name}: absent ({path}), skipped")
+            continue
+        figures[name] = measure(path, args.rounds)
+        print(table({name: figures[name]}), flush=True)
+    print(table(figures))
+    if args.out is not None:
+        args.out.write_text(json.dumps(figures, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
