@@ -33,7 +33,7 @@ from benchmarks.point_elimination import PointsFirstCholmod, SchurComplementSolv
 
 DATA = Path(__file__).resolve().parents[2] / "data-landmarks"
 FILES = ("dlr.g2o", "victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
-         "world-2000-lownoise-full.g2o.gz")  # fmt: skip
+         "world-2000-full.g2o.gz", "world-2000-lownoise-default.g2o.gz", "world-2000-lownoise-full.g2o.gz")  # fmt: skip
 VARIANTS = {"amd": None, "points-first": PointsFirstCholmod, "schur": SchurComplementSolver, "nesdis": "nesdis"}
 
 
@@ -76,6 +76,27 @@ def analyses(graph) -> dict:
     return out
 
 
+def point_statistics(pattern) -> dict:
+    """How the points sit in the graph and in AMD's order: poses seeing each point (median, largest),
+    pose pairs the Schur complement couples through points (``Σ k(k−1)/2``), and the share of points among
+    the first half of the variables AMD eliminates (their share of all variables, ``Q/p``, if AMD were
+    blind to them; ``min(1, 2Q/p)`` if it eliminated them first)."""
+    from posegraph.linalg import cholmod as cholmod_library
+
+    from benchmarks.point_elimination import _point_incidence
+
+    _, point = _point_incidence(pattern)
+    seen = np.bincount(point, minlength=pattern.num_variables - pattern.num_pose_variables)
+    order = cholmod_library.fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
+    half = order[: order.size // 2]
+    return {
+        "points": int(seen.size), "poses": int(pattern.num_pose_variables),
+        "seen_median": float(np.median(seen)), "seen_max": int(seen.max(initial=0)),
+        "pose_pairs": int((seen * (seen - 1) // 2).sum()),
+        "points_in_amd_first_half": float(np.mean(half >= pattern.num_pose_variables)) if half.size else 0.0,
+    }
+
+
 def factor_flops(solver) -> float | None:
     """Flops of the solver's last CHOLMOD factorisation (``schur``: of ``S``)."""
     return solver._cholesky.factor_flops
@@ -112,15 +133,15 @@ def measure(path: Path, rounds: int) -> dict:
             "cost_relative": abs(last.final_cost - reference) / abs(reference),
             "mflop": factor_flops(made[name][0].solver) / 1e6,
         }
-    return rows
+    return {"variants": rows, "points": point_statistics(made["amd"][0].pattern)}
 
 
 def table(figures: dict) -> str:
     """A markdown table of :func:`measure`'s figures, one row per file and variant."""
     lines = ["| file | variant | solver built s | LM s | in process s | factorise s | solve s | iterations (factorisations) | cost vs amd | Mflop / factorisation |",
              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for file, rows in figures.items():
-        for name, row in rows.items():
+    for file, entry in figures.items():
+        for name, row in entry["variants"].items():
             lines.append(
                 f"| {file} | {name} | {row['solver_build_s']:.3f} | {row['lm_s']:.3f} | {row['in_process_s']:.3f} | {row['factorize_s']:.3f} | "
                 f"{row['solve_s']:.3f} | {row['iterations']} ({row['factorisations']}) | {row['cost_relative']:.1e} | {row['mflop']:.1f} |"
@@ -142,7 +163,7 @@ def main(argv=None) -> None:
             print(f"{name}: absent ({path}), skipped")
             continue
         figures[name] = measure(path, args.rounds)
-        print(table({name: figures[name]}), flush=True)
+        print(table({name: figures[name]}), "\n", figures[name]["points"], flush=True)
     print(table(figures))
     if args.out is not None:
         args.out.write_text(json.dumps(figures, indent=1) + "\n")
