@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.point_elimination import PointsFirstCholmod, SchurComplementSolver
+from benchmarks.point_elimination import PointsFirstCholmod, SchurComplementSolver, point_incidence
 
 DATA = Path(__file__).resolve().parents[2] / "data-landmarks"
 FILES = ("dlr.g2o", "victoriaPark-full.g2o.gz", "world-1000-dense-highnoise_default.g2o.gz", "world-2000-default.g2o.gz",
@@ -83,9 +83,7 @@ def point_statistics(pattern) -> dict:
     blind to them; ``min(1, 2Q/p)`` if it eliminated them first)."""
     from posegraph.linalg import cholmod as cholmod_library
 
-    from benchmarks.point_elimination import _point_incidence
-
-    _, point = _point_incidence(pattern)
+    _, point = point_incidence(pattern)
     seen = np.bincount(point, minlength=pattern.num_variables - pattern.num_pose_variables)
     order = cholmod_library.fill_reducing_order(pattern.block_indptr, pattern.block_indices, pattern.num_variables, "amd")
     half = order[: order.size // 2]

@@ -29,10 +29,10 @@ from posegraph.linalg import cholmod as cholmod_library
 from posegraph.solve.linear import CholmodSolver, LinearSolver, NotPositiveDefiniteError, shifted
 from posegraph.solve.sparsity import HessianPattern, analyze_pattern
 
-__all__ = ["PointsFirstCholmod", "SchurComplementSolver", "points_first_order", "reduced_pose_graph"]
+__all__ = ["PointsFirstCholmod", "SchurComplementSolver", "point_incidence", "points_first_order", "reduced_pose_graph"]
 
 
-def _point_incidence(pattern: HessianPattern):
+def point_incidence(pattern: HessianPattern):
     """``(pose (K,), point (K,))``: the stored pose–point blocks of the vertex pattern, by point then pose
     (pose in ``0..P−1``, point in ``0..Q−1``)."""
     count = pattern.num_pose_variables
@@ -65,9 +65,9 @@ def _pairs_within_points(point: np.ndarray):
 
 
 def reduced_pose_graph(pattern: HessianPattern) -> HessianPattern:
-    """The pattern of the Schur complement ``S`` on the poses: a pose–pose block wherever ``H`` has one
-    or two poses see one point (block size ``d``, every pose free)."""
-    pose, point = _point_incidence(pattern)
+    """The pattern of the Schur complement ``S`` on the poses: a pose–pose block wherever ``H`` has one,
+    and between every two poses that see one point (block size ``d``, every pose free)."""
+    pose, point = point_incidence(pattern)
     first, second = _pairs_within_points(point)
     rows, columns = _pose_pairs(pattern)
     shared_a, shared_b = pose[first], pose[second]
@@ -126,7 +126,7 @@ class SchurComplementSolver(LinearSolver):
         self._pattern, self._sizes = pattern, (poses, pattern.num_variables - poses, d, s)
         size, reduced = pattern.dimension, reduced_pose_graph(pattern)
         keys = _entry_keys(pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64), size)
-        self._pose, self._point = _point_incidence(pattern)
+        self._pose, self._point = point_incidence(pattern)
         self._hpp, self._hpx = self._point_gathers(keys)
         self._first, self._second = _pairs_within_points(self._point)
         self._reduced, self._scatter = reduced, self._reduced_scatters(keys, reduced)
