@@ -292,3 +292,23 @@ def test_victoria_park_isam2_error_is_posegraphs_cost_on_the_same_prefix(tmp_pat
     replay(first, 1, progress=at_150)
     assert seen["counts"][0] == seen["counts"][1] and seen["counts"][0][3] > 0
     assert seen["costs"][0] == pytest.approx(seen["costs"][1], rel=1e-12) and seen["costs"][1] > 0
+
+
+def test_point_elimination_benchmark_runs_every_variant_to_the_same_optimum(tmp_path):
+    """bench_point_elimination on a tiny landmark file: every variant's LM from one start, same cost and
+    iterations as today's path, one table row each, the points' statistics counted."""
+    from benchmarks import bench_point_elimination as bench
+    from posegraph.solve.linear import cholmod_available
+
+    if not cholmod_available():
+        pytest.skip("cvxopt's CHOLMOD is not installed")
+    path, graph = _landmark_file(tmp_path)
+    figures = bench.measure(path, rounds=2)
+    rows = figures["variants"]
+    assert {"amd", "points-first", "schur"} <= set(rows)
+    assert all(row["cost_relative"] <= 1e-9 and row["iterations"] == rows["amd"]["iterations"] for row in rows.values())
+    assert rows["amd"]["iterations"] >= 1 and all(row["lm_s"] > 0 and row["mflop"] > 0 for row in rows.values())
+    assert figures["points"]["points"] == graph.landmarks.count
+    assert figures["points"]["pose_pairs"] > 0 and 0 <= figures["points"]["points_in_amd_first_half"] <= 1
+    table = bench.table({path.name: figures}).splitlines()
+    assert len(table) == 2 + len(rows) and all(path.name in line for line in table[2:])
