@@ -47,8 +47,19 @@ assembles, ~0.7 GB of triplets at the peak; larger graphs (a 3D landmark graph o
 
 UNIT_PASSES = 2
 """Solves of the rotation stage with the unit equations (:func:`_relaxed_rotations`) after the plain
-one; each refactorises the same pattern (DLR: 15 LM iterations from the plain relaxation, 9 after
-two passes; a third changed nothing measurable)."""
+one, at least; each refactorises the same pattern (DLR: 18 LM iterations from the plain relaxation,
+8 after two passes)."""
+
+MAX_UNIT_PASSES = 6
+"""At most this many unit passes: after :data:`UNIT_PASSES`, one more while the last turned some
+rotation by more than :data:`SETTLED_DEGREES`."""
+
+SETTLED_DEGREES = 3.0
+"""The unit passes are a fixed-point iteration; a pass that turns no rotation by more than this
+leaves the start settled. Measured (``docs/initialisation.md``): the second pass turns at most
+0.09–1.04° on Victoria Park and the g2o worlds (they stop there), 17.9° on DLR, whose third and
+fourth passes turn 4.6° and 2.7° and take LM from 8 iterations to 5 (a pass costs a factorisation
+of the relaxed system, well under an LM iteration)."""
 
 
 def relaxation_entries(graph: PoseGraph) -> int:
@@ -180,10 +191,11 @@ def _unit_factors(rotations: np.ndarray, basis: np.ndarray, weights: np.ndarray)
     return Factors(np.arange(n), -np.ones(n, np.int64), A, np.zeros((n, 1, 0)), y, weights[:, None])
 
 
-def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, values: np.ndarray, passes: int) -> np.ndarray:
+def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, values: np.ndarray, passes: int, max_passes: int) -> np.ndarray:
     """``(n, r, r)`` rotations of the first stage: the relaxation solved, projected, then solved again
-    ``passes`` times with :func:`_unit_factors` at the last projection, projected each time (one
-    pattern, analysed once; the unit terms add to the poses' diagonal blocks).
+    with :func:`_unit_factors` at the last projection, projected each time: ``passes`` times, then
+    while the last pass turned some rotation by more than :data:`SETTLED_DEGREES`, ``max_passes``
+    at most (one pattern, analysed once; the unit terms add to the poses' diagonal blocks).
 
     The relaxed rotations alone shrink: every term is homogeneous in the poses' rotations,
     translations and the points (the map at a smaller scale fits them all better) but for the held
@@ -197,18 +209,26 @@ def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, v
     system = BlockNormalEquations(sizes, known, [(f.a, f.b) for f in factors])
     data, g = system.matrix(factors), system.right_hand_side(factors, values)
     weights = np.zeros(n)
-    if passes:
+    if max_passes:
         at = system.offsets[:n, None] + np.arange(K)
         weights = np.where(known[:n], 0.0, system.diagonal(data)[np.where(known[:n, None], 0, at)].mean(axis=1))
-    x = system.solve(data, g)
-    for solved in range(passes + 1):
+    x, rotations = system.solve(data, g), None
+    for solved in range(max_passes + 1):
         u = _blocks(x, system.offsets, np.arange(n), K, known, values)
-        rotations = graph.group.rotations.project(np.einsum("nk,kab->nab", u, basis))
-        rotations[known[:n]] = graph.poses[known[:n], :r, :r]
-        if solved < passes:
-            unit = [_unit_factors(rotations, basis, weights)]
-            x = system.solve(data + system.matrix(unit), g + system.right_hand_side(unit, values))
-    return rotations
+        projected = graph.group.rotations.project(np.einsum("nk,kab->nab", u, basis))
+        projected[known[:n]] = graph.poses[known[:n], :r, :r]
+        settled = rotations is not None and _largest_turn(rotations, projected, graph.group) <= SETTLED_DEGREES
+        rotations = projected
+        if solved == max_passes or (solved >= passes and settled):
+            return rotations
+        unit = [_unit_factors(rotations, basis, weights)]
+        x = system.solve(data + system.matrix(unit), g + system.right_hand_side(unit, values))
+
+
+def _largest_turn(before: np.ndarray, after: np.ndarray, group) -> float:
+    """The largest angle, in degrees, between rotations ``before`` and ``after`` ``(n, r, r)`` (0 if none)."""
+    angles = np.linalg.norm(group.rotations.log(np.swapaxes(before, 1, 2) @ after).reshape(len(after), -1), axis=1)
+    return float(np.degrees(angles.max(initial=0.0)))
 
 
 def _translations(graph: PoseGraph, basis: np.ndarray, rotations: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -227,11 +247,12 @@ def _translations(graph: PoseGraph, basis: np.ndarray, rotations: np.ndarray, kn
     return _blocks(x.reshape(-1), system.offsets * r, np.arange(len(known)), r, known, values)  # (offset·r: x row-major)
 
 
-def relaxed_start(graph: PoseGraph, *, unit_passes: int = UNIT_PASSES) -> np.ndarray:
+def relaxed_start(graph: PoseGraph, *, unit_passes: int | None = None) -> np.ndarray:
     """Poses ``(n, k, k)`` of a landmark graph from the relaxation (module docstring); held ones as given.
 
     ``unit_passes``: how many times the rotation stage is solved again with the unit equations
-    (:func:`_relaxed_rotations`; 0: the plain relaxation).
+    (:func:`_relaxed_rotations`; 0: the plain relaxation); None: :data:`UNIT_PASSES`, then more until
+    settled (:data:`SETTLED_DEGREES`), :data:`MAX_UNIT_PASSES` at most.
 
     Raises :class:`~posegraph.linalg.cholmod.NotPositiveDefiniteError` when the relaxed system is
     singular (a pose or point its terms do not fix), for the caller to start otherwise.
@@ -245,6 +266,7 @@ def relaxed_start(graph: PoseGraph, *, unit_passes: int = UNIT_PASSES) -> np.nda
     values = np.zeros((n + L, K + r))
     values[:n, :K], values[:n, K:] = rotation_coordinates(poses[:, :r, :r], basis), poses[:, :r, r]
     values[n:, :r] = graph.landmarks.positions
-    rotations = _relaxed_rotations(replace(graph, poses=poses), basis, known, values, unit_passes)
+    passes = (UNIT_PASSES, MAX_UNIT_PASSES) if unit_passes is None else (unit_passes, unit_passes)
+    rotations = _relaxed_rotations(replace(graph, poses=poses), basis, known, values, *passes)
     poses[:, :r, :r], poses[:, :r, r] = rotations, _translations(graph, basis, rotations, known)[:n]
     return poses
