@@ -16,16 +16,18 @@ the points::
 
 — the chordal relaxation (Martinez-Cantin and Castellanos; Carlone et al., ICRA 2015) with the
 landmarks in it. One sparse least-squares solve gives all unknowns; each ``R_i`` is projected to the
-nearest rotation; the same system is solved again (:data:`UNIT_PASSES` times) with one more equation
-per pose, ``⟨ū_i, u_i⟩ = ‖ū_i‖²`` at the last projection ``ū_i``, which keeps the relaxed rotations from
-shrinking (:func:`_relaxed_rotations`); a last solve, rotations held, gives the translations and points (all stages
-with the held poses (:func:`relaxation_anchors`) and the ``FIX`` landmarks known, their terms moved
-to the right-hand side). Bearings, being bilinear, enter only through the landmarks' own start
+nearest rotation; the same system is solved again (:data:`UNIT_PASSES` times, more until no rotation
+turns by over :data:`SETTLED_DEGREES`) with one more equation per pose, ``⟨ū_i, u_i⟩ = ‖ū_i‖²`` at the
+last projection ``ū_i``, which keeps the relaxed rotations from shrinking (:func:`_relaxed_rotations`);
+a last solve, rotations held, gives the translations and points, one scalar system for the ``r``
+coordinates (:func:`_translations`). All stages hold the held poses (:func:`relaxation_anchors`)
+and the ``FIX`` landmarks known, their terms moved to the right-hand side; the normal equations are
+laid out on their block pattern once per stage (:mod:`posegraph.init.block_normal`). Bearings, being bilinear, enter only through the landmarks' own start
 (:func:`posegraph.init.landmarks.initialize_landmarks`) and the solver.
 
-Measured (``docs/landmarks.md``): Victoria Park from this start converges in 6 LM iterations to
-χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's poses: 87,156);
-DLR in 9 (15 from the relaxation without the unit equations).
+Measured (``docs/landmarks.md``, ``docs/initialisation.md``): Victoria Park from this start converges
+in 6 LM iterations to χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's
+poses: 87,156); DLR in 5 (8 after two unit passes, 18 from the relaxation without them).
 """
 
 from __future__ import annotations
@@ -42,8 +44,9 @@ __all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_
 
 MAX_ENTRIES = 30_000_000
 """Largest number of normal-equation block entries (before duplicates are summed) the relaxation
-assembles, ~0.7 GB of triplets at the peak; larger graphs (a 3D landmark graph of ~70,000 pose edges:
-12×12 blocks) start from their pose edges alone (:func:`posegraph.init.initialize`)."""
+assembles, ~1 GB at the peak (≈ 34 bytes an entry: world-1000's 2.05 M entries peak at 69 MB);
+larger graphs (a 3D landmark graph of ~70,000 pose edges: 12×12 blocks) start from their pose edges
+alone (:func:`posegraph.init.initialize`)."""
 
 UNIT_PASSES = 2
 """Solves of the rotation stage with the unit equations (:func:`_relaxed_rotations`) after the plain
