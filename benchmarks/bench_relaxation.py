@@ -10,6 +10,10 @@ total (read + initialise + optimise + write, the report's own clock), and of the
 wall and CPU seconds (``benchmarks/spawn.py``). Files: the public landmark files
 (``benchmarks.bench_landmarks.DATA_FILES``) and two pose graphs (``sphere2500``, ``intel``), whose
 start the relaxation does not touch (a check that nothing else moved).
+
+Then, per landmark file and tree, ``relaxed_start`` alone in one process (:data:`RELAXATION_ALONE`):
+the least CPU seconds of ``--calls`` calls after a first, and the start's cost with the landmarks placed
+from its poses (the cost LM starts from), for the files whose own values are their start too.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -27,6 +32,22 @@ from benchmarks.bench_landmarks import DATA_DIR, DATA_FILES, THREADS, extract_re
 
 POSE_GRAPHS = ("sphere2500.g2o", "intel.g2o")
 FIELDS = ("initial_cost", "final_cost", "iterations")
+RELAXATION_ALONE = """
+import json, sys, time, warnings
+warnings.simplefilter("ignore")
+from posegraph.io.g2o import read_g2o
+from posegraph.init.landmarks import initialize_landmarks
+from posegraph.init.relaxation import relaxed_start
+from posegraph.solve.objective import Objective
+graph = read_g2o(sys.argv[1])
+poses, seconds = relaxed_start(graph), []
+for _ in range(int(sys.argv[2])):
+    start = time.process_time()
+    relaxed_start(graph)
+    seconds.append(time.process_time() - start)
+cost = Objective(graph).evaluate(poses, initialize_landmarks(graph, poses)[0]).cost
+print(json.dumps({"cpu": min(seconds), "start_cost": float(cost)}))
+"""
 
 
 def run_once(path: Path, tree: Path, workdir: Path, timeout: float) -> dict | None:
@@ -59,6 +80,16 @@ def compare_file(path: Path, trees: dict, repeats: int, workdir: Path, timeout: 
     return out
 
 
+def relaxation_alone(path: Path, trees: dict, calls: int, timeout: float) -> dict:
+    """``{label: {"cpu", "start_cost"}}``: :data:`RELAXATION_ALONE` in each tree (None where it failed)."""
+    out = {}
+    for label, tree in trees.items():
+        done = subprocess.run([sys.executable, "-c", RELAXATION_ALONE, str(path), str(calls)], cwd=tree,
+                              capture_output=True, text=True, timeout=timeout)  # fmt: skip
+        out[label] = json.loads(done.stdout) if done.returncode == 0 else None
+    return out
+
+
 def markdown(results: dict, before: str, repeats: int) -> str:
     """One row per file and tree, then the ratios of the medians."""
     lines = [f"`python -m benchmarks.bench_relaxation --before {before} --repeats {repeats}` (medians of {repeats} alternating rounds)", "",
@@ -75,12 +106,24 @@ def markdown(results: dict, before: str, repeats: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def relaxation_markdown(alone: dict, calls: int) -> str:
+    """One row per landmark file: each tree's least CPU seconds of ``relaxed_start`` and its start's cost."""
+    labels = list(next(iter(alone.values()))) if alone else []
+    lines = [f"`relaxed_start(graph)` alone, in process: least CPU seconds of {calls} calls after a first, and the cost LM starts from", "",
+             "| file | " + " | ".join(f"{label} s | {label} start cost" for label in labels) + " |", "|---" * (1 + 2 * len(labels)) + "|"]  # fmt: skip
+    for name, by_tree in alone.items():
+        cells = [f"{e['cpu']:.3f} | {e['start_cost']:.10g}" if e else "failed | " for e in by_tree.values()]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--before", default="main", help="the revision to compare with (default main)")
     p.add_argument("--repeats", type=int, default=5, help="measured rounds per file (default 5)")
     p.add_argument("--data", default=str(DATA_DIR), help=f"folder of the landmark files (default {DATA_DIR})")
     p.add_argument("--only", nargs="+", metavar="NAME", help="keep only files whose name contains one of these")
+    p.add_argument("--calls", type=int, default=5, help="calls of relaxed_start alone per tree (default 5)")
     p.add_argument("--json", help="also write the runs here")
     p.add_argument("--timeout", type=float, default=600)
     args = p.parse_args(argv)
@@ -89,7 +132,7 @@ def main(argv=None) -> int:
     harness.compile_bytecode()
     paths = [Path(args.data) / name for name in DATA_FILES] + [harness.SHARED_DATASETS / name for name in POSE_GRAPHS]
     paths = [path for path in paths if path.is_file() and (not args.only or any(k in path.name for k in args.only))]
-    results = {}
+    results, alone = {}, {}
     with tempfile.TemporaryDirectory(prefix="pg-relaxation-") as tmp:
         trees = {"current": harness.ROOT, args.before: extract_revision(args.before, Path(tmp) / "tree")}
         for path in paths:
@@ -97,9 +140,13 @@ def main(argv=None) -> int:
             print(f"{path.name}: " + ", ".join(f"{label} {e['median'].get('initialise', float('nan')):.3f} s initialise, "
                                                 f"{e['median'].get('wall', float('nan')):.3f} s whole" for label, e in results[path.name].items()),
                   file=sys.stderr, flush=True)  # fmt: skip
+        for path in paths:
+            if path.name not in POSE_GRAPHS:
+                alone[path.name] = relaxation_alone(path, trees, args.calls, args.timeout)
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1))
+        Path(args.json).write_text(json.dumps({"processes": results, "relaxation_alone": alone}, indent=1))
     print(markdown(results, args.before, args.repeats))
+    print(relaxation_markdown(alone, args.calls))
     return 0
 
 
