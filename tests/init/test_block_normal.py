@@ -112,3 +112,12 @@ def test_the_relaxed_start_equals_its_dense_formulation(group, kinds, offsets, p
     fixed[2] = True  # a known point: its terms on the right-hand side
     graph = replace(graph, landmarks=replace(graph.landmarks, fixed=fixed))
     np.testing.assert_allclose(relaxation.relaxed_start(graph, unit_passes=passes), _dense_relaxed_start(graph, passes), rtol=0, atol=1e-9)
+
+
+def test_without_cvxopt_superlu_gives_the_same_start(monkeypatch):
+    from posegraph.linalg import cholmod
+
+    graph, _, _ = landmark_graph(SE2, 12, 7, ("position", "prior"), noise=0.05, seed=9, per_landmark=4)
+    with_cholmod = relaxation.relaxed_start(graph)
+    monkeypatch.setattr(cholmod, "load", lambda: None)  # as without cvxopt
+    np.testing.assert_allclose(relaxation.relaxed_start(graph), with_cholmod, rtol=0, atol=1e-9)
