@@ -84,10 +84,10 @@ class BlockNormalEquations:
         size_pairs = self.sizes[block_row] * (self.sizes.max() + 1) + self.sizes[block_col]
         for pair in set(size_pairs.tolist()):
             stored = np.flatnonzero(size_pairs == pair)
-            R, C = block_row[stored], block_col[stored]
-            x, y = np.arange(self.sizes[R[0]]), np.arange(self.sizes[C[0]])
-            at = self._base[C][:, None, None] + y * self._height[C][:, None, None] + self._above[stored][:, None, None]
-            indices[(at + x[:, None]).ravel()] = np.broadcast_to(self.offsets[R][:, None, None] + x[:, None], at.shape[:1] + (x.size, y.size)).ravel()
+            R, C = block_row[stored, None, None], block_col[stored, None, None]
+            x, y = np.arange(self.sizes[R[0, 0, 0]])[:, None], np.arange(self.sizes[C[0, 0, 0]])[None, :]
+            at = self._base[C] + y * self._height[C] + self._above[stored, None, None] + x  # (stored, x, y)
+            indices[at.ravel()] = np.broadcast_to(self.offsets[R] + x, at.shape).ravel()
         return indices
 
     def _stored(self, row_block: np.ndarray, col_block: np.ndarray) -> np.ndarray:
