@@ -97,15 +97,14 @@ class BlockNormalEquations:
     def _positions(self, a: np.ndarray, b, size_a: int, size_b: int) -> np.ndarray:
         """``(m, size_a, size_b)``: where entry ``(p, q)`` of ``A_aᵀ W A_b`` lands: in ``a``'s diagonal
         block when ``b`` is None; else in the stored block ``(max, min)``, transposed when ``a < b``."""
-        p, q = np.arange(size_a)[:, None], np.arange(size_b)[None, :]
-        if b is None:
-            start, stride_p, stride_q = self._base[a], 1, self._height[a][:, None, None]
-        else:
-            lower, column = a > b, np.minimum(a, b)
-            start = self._base[column] + self._above[self._stored(np.maximum(a, b), column)]
-            stride_p = np.where(lower, 1, self._height[a])[:, None, None]
-            stride_q = np.where(lower, self._height[b], 1)[:, None, None]
-        return start[:, None, None] + stride_p * p + stride_q * q
+        p, q = np.arange(size_a), np.arange(size_b)
+        if b is None:  # the diagonal block: entry (p, q) at base + q·h + p
+            return (self._base[a][:, None] + p)[:, :, None] + self._height[a][:, None, None] * q
+        lower, column = a > b, np.minimum(a, b)
+        start = self._base[column] + self._above[self._stored(np.maximum(a, b), column)]
+        stride_p = np.where(lower, 1, self._height[a])[:, None, None]
+        stride_q = np.where(lower, self._height[b], 1)[:, None, None]
+        return start[:, None, None] + stride_p * p[:, None] + stride_q * q
 
     def matrix(self, factors: list) -> np.ndarray:
         """``(nnz,)`` the values of ``Σ_f A_fᵀ W_f A_f`` over the free blocks (the factors' pairs in the pattern)."""
@@ -117,9 +116,10 @@ class BlockNormalEquations:
             for u, A_u, v, weighted_v, both in (  # N is stored once per block pair: (a, a), (a, b), (b, b)
                 (f.a, f.A_a, None, weighted_a, free_a), (f.a, f.A_a, b, weighted_b, free_a & free_b), (b, f.A_b, None, weighted_b, free_b),
             ):  # fmt: skip
-                values.append((np.swapaxes(A_u[both], 1, 2) @ weighted_v[both]).ravel())
-                at = self._positions(u[both], None if v is None else v[both], A_u.shape[2], weighted_v.shape[2])
-                positions.append(at.ravel())
+                if not both.all():  # (masks copy: skipped when every block is free)
+                    u, A_u, v, weighted_v = u[both], A_u[both], None if v is None else v[both], weighted_v[both]
+                values.append((np.swapaxes(A_u, 1, 2) @ weighted_v).ravel())
+                positions.append(self._positions(u, v, A_u.shape[2], weighted_v.shape[2]).ravel())
         return np.bincount(np.concatenate(positions), np.concatenate(values), minlength=self.nnz)
 
     def diagonal(self, data: np.ndarray) -> np.ndarray:
