@@ -40,7 +40,7 @@ from posegraph.init.block_normal import BlockNormalEquations, Factors
 from posegraph.init.landmarks import range_point_information
 from posegraph.model.graph import PoseGraph, connected_components, held_vertices
 
-__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_entries", "MAX_ENTRIES"]
+__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_entries", "MAX_ENTRIES", "UNIT_PASSES", "MAX_UNIT_PASSES", "SETTLED_DEGREES"]
 
 MAX_ENTRIES = 30_000_000
 """Largest number of normal-equation block entries (before duplicates are summed) the relaxation
