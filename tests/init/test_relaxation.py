@@ -125,3 +125,14 @@ def test_the_settled_start_is_no_worse_than_two_passes_on_the_public_files(name)
     two, settled = relaxed_start(graph, unit_passes=2), relaxed_start(graph)
     assert _start_cost(graph, settled) <= _start_cost(graph, two)  # DLR: χ² 59,108 → 58,537 (4 passes)
     assert np.array_equal(settled, two) == (name != "dlr.g2o")  # the others' second pass turns ≤ 1.04°
+
+
+def test_a_pass_settles_by_the_turn_of_the_map_not_of_one_pose():
+    from posegraph.init.relaxation import _turn
+
+    before = SE2.exp(np.random.default_rng(6).normal(size=(200, 3)))[:, :2, :2]
+    turns = np.full(200, np.radians(1.0))
+    turns[17] = np.radians(90.0)  # one loosely held pose swinging round
+    after = before @ SE2.exp(np.stack([np.zeros(200), np.zeros(200), turns], axis=1))[:, :2, :2]
+    assert abs(_turn(before, after, SE2) - 1.0) < 1e-9
+    assert _turn(before[:0], after[:0], SE2) == 0.0
