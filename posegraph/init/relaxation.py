@@ -16,39 +16,54 @@ the points::
 
 — the chordal relaxation (Martinez-Cantin and Castellanos; Carlone et al., ICRA 2015) with the
 landmarks in it. One sparse least-squares solve gives all unknowns; each ``R_i`` is projected to the
-nearest rotation; the same system is solved again (:data:`UNIT_PASSES` times) with one more equation
-per pose, ``⟨ū_i, u_i⟩ = ‖ū_i‖²`` at the last projection ``ū_i``, which keeps the relaxed rotations from
-shrinking (:func:`_relaxed_rotations`); a last solve, rotations held, gives the translations and points (all stages
-with the held poses (:func:`relaxation_anchors`) and the ``FIX`` landmarks known, their terms moved
-to the right-hand side). Bearings, being bilinear, enter only through the landmarks' own start
+nearest rotation; the same system is solved again (:data:`UNIT_PASSES` times, more until 99 % of
+the rotations turn by no more than :data:`SETTLED_DEGREES`) with one more equation per pose,
+``⟨ū_i, u_i⟩ = ‖ū_i‖²`` at the last projection ``ū_i``, which keeps the relaxed rotations from
+shrinking (:func:`_relaxed_rotations`); a last solve, rotations held, gives the translations and points, one scalar system for the ``r``
+coordinates (:func:`_translations`). All stages hold the held poses (:func:`relaxation_anchors`)
+and the ``FIX`` landmarks known, their terms moved to the right-hand side; the normal equations are
+laid out on their block pattern once per stage (:mod:`posegraph.init.block_normal`). Bearings, being bilinear, enter only through the landmarks' own start
 (:func:`posegraph.init.landmarks.initialize_landmarks`) and the solver.
 
-Measured (``docs/landmarks.md``): Victoria Park from this start converges in 6 LM iterations to
-χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's poses: 87,156);
-DLR in 9 (15 from the relaxation without the unit equations).
+Measured (``docs/landmarks.md``, ``docs/initialisation.md``): Victoria Park from this start converges
+in 6 LM iterations to χ² 390, from the pose-only chordal start in 98 to χ² 7,706 (g2o, from the file's
+poses: 87,156); DLR in 5 (8 after two unit passes, 18 from the relaxation without them).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
+from posegraph.init.block_normal import BlockNormalEquations, Factors
 from posegraph.init.landmarks import range_point_information
-from posegraph.linalg import cholmod as cholmod_library
 from posegraph.model.graph import PoseGraph, connected_components, held_vertices
 
-__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_entries", "MAX_ENTRIES"]
+__all__ = ["relaxed_start", "relaxation_anchors", "rotation_basis", "relaxation_entries", "MAX_ENTRIES", "UNIT_PASSES", "MAX_UNIT_PASSES", "SETTLED_DEGREES"]
 
 MAX_ENTRIES = 30_000_000
 """Largest number of normal-equation block entries (before duplicates are summed) the relaxation
-assembles, ~0.7 GB of triplets at the peak; larger graphs (a 3D landmark graph of ~70,000 pose edges:
-12×12 blocks) start from their pose edges alone (:func:`posegraph.init.initialize`)."""
+assembles, ~1 GB at the peak (≈ 34 bytes an entry: world-1000's 2.05 M entries peak at 69 MB);
+larger graphs (a 3D landmark graph of ~70,000 pose edges: 12×12 blocks) start from their pose edges
+alone (:func:`posegraph.init.initialize`)."""
 
 UNIT_PASSES = 2
 """Solves of the rotation stage with the unit equations (:func:`_relaxed_rotations`) after the plain
-one; each refactorises the same pattern (DLR: 15 LM iterations from the plain relaxation, 9 after
-two passes; a third changed nothing measurable)."""
+one, at least; each refactorises the same pattern (DLR: 18 LM iterations from the plain relaxation,
+8 after two passes)."""
+
+MAX_UNIT_PASSES = 6
+"""At most this many unit passes: after :data:`UNIT_PASSES`, one more while the last turned the
+rotations by more than :data:`SETTLED_DEGREES` (:func:`_turn`)."""
+
+SETTLED_DEGREES = 3.0
+"""The unit passes are a fixed-point iteration; a pass that turns 99 % of the rotations by no more
+than this leaves the start settled (the percentile, not the largest turn, so that one loosely held
+pose cannot keep the passes going). Measured (``docs/initialisation.md``): the second pass turns
+0.09–1.04° on Victoria Park and the g2o worlds (they stop there), 17.7° on DLR, whose third and
+fourth passes turn 4.5° and 2.4° and take LM from 8 iterations to 5 (a pass costs a factorisation
+of the relaxed system, well under an LM iteration)."""
 
 
 def relaxation_entries(graph: PoseGraph) -> int:
@@ -86,19 +101,7 @@ def relaxation_anchors(graph: PoseGraph) -> np.ndarray:
     return held
 
 
-@dataclass
-class _Factors:
-    """A batch of linear equations ``A_a x_a + A_b x_b = y`` between blocks ``a`` and ``b`` (``b`` −1: unary)."""
-
-    a: np.ndarray  # (m,) block of the first unknown
-    b: np.ndarray  # (m,) block of the second, −1 for none
-    A_a: np.ndarray  # (m, rows, size_a)
-    A_b: np.ndarray  # (m, rows, size_b)
-    y: np.ndarray  # (m, rows)
-    w: np.ndarray  # (m, rows) weight of each row
-
-
-def _edge_factors(graph: PoseGraph, basis: np.ndarray, rotations) -> _Factors:
+def _edge_factors(graph: PoseGraph, basis: np.ndarray, rotations) -> Factors:
     """The pose edges' equations; pass 1 (``rotations`` None) over ``(u, t)``, pass 2 over ``t`` alone."""
     from posegraph.init.weights import rotation_weights, translation_information
 
@@ -109,7 +112,7 @@ def _edge_factors(graph: PoseGraph, basis: np.ndarray, rotations) -> _Factors:
     eye = np.broadcast_to(np.eye(r), (m, r, r))
     if rotations is not None:  # t_j − t_i = R_i t_Z
         y = np.einsum("mab,mb->ma", rotations[i], t_Z)
-        return _Factors(i, j, -eye, eye, y, np.repeat(tau[:, None], r, axis=1))
+        return Factors(i, j, -eye, eye, y, np.repeat(tau[:, None], r, axis=1))
     q = K + r
     A_i, A_j = np.zeros((m, r * r + r, q)), np.zeros((m, r * r + r, q))
     A_j[:, : r * r, :K] = basis.reshape(K, -1).T  # vec(R_j)
@@ -118,7 +121,7 @@ def _edge_factors(graph: PoseGraph, basis: np.ndarray, rotations) -> _Factors:
     A_i[:, r * r :, K:], A_j[:, r * r :, K:] = -eye, eye
     kappa = rotation_weights(graph.information, graph.group)
     w = np.concatenate([np.repeat(kappa[:, None], r * r, axis=1), np.repeat(tau[:, None], r, axis=1)], axis=1)
-    return _Factors(i, j, A_i, A_j, np.zeros((m, r * r + r)), w)
+    return Factors(i, j, A_i, A_j, np.zeros((m, r * r + r)), w)
 
 
 def _sighting_vectors(family, r: int):
@@ -144,7 +147,7 @@ def _landmark_factors(graph: PoseGraph, basis: np.ndarray, rotations, n: int) ->
         q, eye = family.count, np.broadcast_to(np.eye(r), (family.count, r, r))
         if family.kind == "prior":
             y, w = np.asarray(family.measurements, np.float64), np.trace(family.information, axis1=1, axis2=2) / r
-            out.append(_Factors(n + family.landmark, -np.ones(q, np.int64), eye, np.zeros((q, r, 0)), y, np.repeat(w[:, None], r, 1)))
+            out.append(Factors(n + family.landmark, -np.ones(q, np.int64), eye, np.zeros((q, r, 0)), y, np.repeat(w[:, None], r, 1)))
             continue
         sighted = _sighting_vectors(family, r)
         if sighted is None:
@@ -152,98 +155,11 @@ def _landmark_factors(graph: PoseGraph, basis: np.ndarray, rotations, n: int) ->
         v, w = sighted
         i, w = family.pose, np.repeat(w[:, None], r, axis=1)
         if rotations is not None:  # p − t_i = R_i v
-            out.append(_Factors(i, n + family.landmark, -eye, eye, np.einsum("qab,qb->qa", rotations[i], v), w))
+            out.append(Factors(i, n + family.landmark, -eye, eye, np.einsum("qab,qb->qa", rotations[i], v), w))
             continue
         A_i = np.concatenate([-np.einsum("kab,qb->qak", basis, v), -eye], axis=2)  # −R_i v − t_i
-        out.append(_Factors(i, n + family.landmark, A_i, eye, np.zeros((q, r)), w))
+        out.append(Factors(i, n + family.landmark, A_i, eye, np.zeros((q, r)), w))
     return out
-
-
-def _block_entries(rows_of, cols_of, block):
-    """``(rows, cols, values)`` raveled, of dense blocks ``block (m, su, sv)`` at scalar rows
-    ``rows_of (m, su)`` and columns ``cols_of (m, sv)``, keeping the lower triangle (row ≥ col)."""
-    rows = np.broadcast_to(rows_of[:, :, None], block.shape).ravel()
-    cols = np.broadcast_to(cols_of[:, None, :], block.shape).ravel()
-    keep = rows >= cols
-    return rows[keep], cols[keep], block.ravel()[keep]
-
-
-def _assemble(factors: list, sizes: np.ndarray, known: np.ndarray, values: np.ndarray):
-    """The normal equations ``(rows, cols, data)`` (lower triangle, duplicates not yet summed) and
-    ``g`` of ``Σ ‖A_a x_a + A_b x_b − y‖²_W`` over the free blocks; known blocks' terms on the right.
-
-    ``sizes (B,)`` block sizes, ``known (B,)`` bool, ``values (B, max size)`` the known blocks' values."""
-    offsets = np.concatenate(([0], np.cumsum(np.where(known, 0, sizes))))
-    size = int(offsets[-1])
-    entries, g = [], np.zeros(size)
-    for f in factors:
-        y = f.y - np.einsum("mrs,ms->mr", f.A_a, np.where(known[f.a][:, None], values[f.a, : f.A_a.shape[2]], 0.0))
-        has_b = f.b >= 0
-        b = np.where(has_b, f.b, 0)
-        y -= np.einsum("mrs,ms->mr", f.A_b, np.where((has_b & known[b])[:, None], values[b, : f.A_b.shape[2]], 0.0))
-        sides = [(f.a, f.A_a, ~known[f.a]), (b, f.A_b, has_b & ~known[b])]
-        for block, A, free in sides:
-            weighted = A * f.w[:, :, None]  # W A
-            at = offsets[block][:, None] + np.arange(A.shape[2])
-            g += np.bincount(at[free].ravel(), np.einsum("mrs,mr->ms", weighted, y)[free].ravel(), minlength=size)
-            for other, B, free_other in sides:
-                both = free & free_other
-                entries.append(_block_entries(at[both], offsets[other][both][:, None] + np.arange(B.shape[2]),
-                                              np.swapaxes(A[both], 1, 2) @ (B[both] * f.w[both][:, :, None])))  # fmt: skip
-    diagonal = np.arange(size)  # every variable a stored diagonal, even if no factor reaches it
-    rows, cols, data = (np.concatenate([e[k] for e in entries] + [init]) for k, init in
-                        enumerate((diagonal, diagonal, np.zeros(size))))  # fmt: skip
-    return (rows, cols, data), g, offsets
-
-
-class _NormalEquations:
-    """A symmetric ``N`` given by lower-triangle triplets, duplicates summed once, factorised any number
-    of times with more triplets on the same pattern (:meth:`solve`): CHOLMOD from the cvxopt wheel,
-    analysed once, else SuperLU.
-
-    ``triplets`` ``(rows, cols, data)`` the fixed part; ``extra`` ``(rows, cols)`` the entries whose
-    values change from solve to solve (the unit terms of :func:`_unit_factors`)."""
-
-    def __init__(self, triplets, size: int, extra=None):
-        rows, cols, data = triplets
-        self.size, self.base_count = size, len(data)
-        if extra is not None:
-            rows, cols = np.concatenate([rows, extra[0]]), np.concatenate([cols, extra[1]])
-        key = cols.astype(np.int64) * max(size, 1) + rows
-        order = np.argsort(key, kind="stable")
-        first = np.concatenate(([True], key[order][1:] != key[order][:-1]))
-        self.slot = np.empty(len(key), np.int64)  # each triplet's entry in the summed pattern
-        self.slot[order] = np.cumsum(first) - 1
-        self.rows, cols = rows[order][first], cols[order][first]
-        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=size))))
-        self.base = np.bincount(self.slot[: self.base_count], data, minlength=len(self.rows))
-        self.factor = None
-        if cholmod_library.load() is not None:
-            self.factor = cholmod_library.SparseCholesky(self.indptr, self.rows, size, "amd")
-
-    def diagonal(self) -> np.ndarray:
-        """``(size,)`` the fixed part's diagonal."""
-        columns = np.repeat(np.arange(self.size), np.diff(self.indptr))
-        return np.bincount(self.rows[self.rows == columns], self.base[self.rows == columns], minlength=self.size)
-
-    def solve(self, g: np.ndarray, extra_data=None) -> np.ndarray:
-        """``x = N⁻¹ g``, ``N`` the fixed part plus ``extra_data`` (values of the ``extra`` entries)."""
-        values = self.base
-        if extra_data is not None:
-            values = values + np.bincount(self.slot[self.base_count :], extra_data, minlength=len(values))
-        if self.factor is not None:
-            self.factor.factorize(values)
-            return self.factor.solve(g)
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import spsolve
-
-        lower = sp.csc_matrix((values, self.rows, self.indptr), shape=(self.size, self.size))
-        return spsolve((lower + sp.tril(lower, -1).T).tocsc(), g)
-
-
-def _solve_normal(triplets, g: np.ndarray) -> np.ndarray:
-    """``x = N⁻¹ g`` for the symmetric ``N`` given by lower-triangle triplets (duplicates summed here)."""
-    return _NormalEquations(triplets, g.shape[0]).solve(g)
 
 
 def _reached(graph: PoseGraph) -> tuple[np.ndarray, np.ndarray]:
@@ -267,7 +183,7 @@ def _blocks(x: np.ndarray, offsets: np.ndarray, blocks: np.ndarray, size: int, k
     return np.where(known[blocks][:, None], values[blocks, :size], solved)
 
 
-def _unit_factors(rotations: np.ndarray, basis: np.ndarray, weights: np.ndarray) -> _Factors:
+def _unit_factors(rotations: np.ndarray, basis: np.ndarray, weights: np.ndarray) -> Factors:
     """One equation per pose, ``⟨ū_i, u_i⟩ = ‖ū_i‖²`` (``ū_i`` the coordinates of ``rotations[i]``):
     the relaxed rotation keeps its size along the last estimate and turns freely across it (weight
     ``weights (n,)``)."""
@@ -276,12 +192,14 @@ def _unit_factors(rotations: np.ndarray, basis: np.ndarray, weights: np.ndarray)
     A = np.zeros((n, 1, K + r))
     A[:, 0, :K] = u_bar
     y = np.einsum("nk,nk->n", u_bar, u_bar)[:, None]
-    return _Factors(np.arange(n), -np.ones(n, np.int64), A, np.zeros((n, 1, 0)), y, weights[:, None])
+    return Factors(np.arange(n), -np.ones(n, np.int64), A, np.zeros((n, 1, 0)), y, weights[:, None])
 
 
-def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, values: np.ndarray, passes: int) -> np.ndarray:
+def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, values: np.ndarray, passes: int, max_passes: int) -> np.ndarray:
     """``(n, r, r)`` rotations of the first stage: the relaxation solved, projected, then solved again
-    ``passes`` times with :func:`_unit_factors` at the last projection, projected each time.
+    with :func:`_unit_factors` at the last projection, projected each time: ``passes`` times, then
+    while the last pass turned the rotations by more than :data:`SETTLED_DEGREES` (:func:`_turn`),
+    ``max_passes`` at most (one pattern, analysed once; the unit terms add to the poses' diagonal blocks).
 
     The relaxed rotations alone shrink: every term is homogeneous in the poses' rotations,
     translations and the points (the map at a smaller scale fits them all better) but for the held
@@ -292,31 +210,56 @@ def _relaxed_rotations(graph: PoseGraph, basis: np.ndarray, known: np.ndarray, v
     n, r, K = graph.num_vertices, basis.shape[1], len(basis)
     sizes = np.concatenate([np.full(n, K + r), np.full(graph.landmarks.count, r)])
     factors = [_edge_factors(graph, basis, None)] + _landmark_factors(graph, basis, None, n)
-    triplets, g, offsets = _assemble(factors, sizes, known, values)
+    system = BlockNormalEquations(sizes, known, [(f.a, f.b) for f in factors])
+    data, g = system.matrix(factors), system.right_hand_side(factors, values)
     weights = np.zeros(n)
-    unit = _unit_factors(graph.poses[:, :r, :r], basis, weights)  # the unit entries' places (zero weight)
-    unit_triplets, _, _ = _assemble([unit], sizes, known, values)
-    system = _NormalEquations(triplets, g.shape[0], extra=unit_triplets[:2])
-    if passes:
-        diagonal = system.diagonal()
-        at = offsets[:n, None] + np.arange(K)
-        weights = np.where(known[:n], 0.0, diagonal[np.where(known[:n, None], 0, at)].mean(axis=1))
-    x = system.solve(g)
-    for solved in range(passes + 1):
-        u = _blocks(x, offsets, np.arange(n), K, known, values)
-        rotations = graph.group.rotations.project(np.einsum("nk,kab->nab", u, basis))
-        rotations[known[:n]] = graph.poses[known[:n], :r, :r]
-        if solved < passes:
-            unit_triplets, unit_g, _ = _assemble([_unit_factors(rotations, basis, weights)], sizes, known, values)
-            x = system.solve(g + unit_g, unit_triplets[2])
-    return rotations
+    if max_passes:
+        at = system.offsets[:n, None] + np.arange(K)
+        weights = np.where(known[:n], 0.0, system.diagonal(data)[np.where(known[:n, None], 0, at)].mean(axis=1))
+    x, rotations = system.solve(data, g), None
+    for solved in range(max_passes + 1):
+        u = _blocks(x, system.offsets, np.arange(n), K, known, values)
+        projected = graph.group.rotations.project(np.einsum("nk,kab->nab", u, basis))
+        projected[known[:n]] = graph.poses[known[:n], :r, :r]
+        settled = rotations is not None and _turn(rotations, projected, graph.group) <= SETTLED_DEGREES
+        rotations = projected
+        if solved == max_passes or (solved >= passes and settled):
+            return rotations
+        unit = [_unit_factors(rotations, basis, weights)]
+        x = system.solve(data + system.matrix(unit), g + system.right_hand_side(unit, values))
 
 
-def relaxed_start(graph: PoseGraph, *, unit_passes: int = UNIT_PASSES) -> np.ndarray:
+def _turn(before: np.ndarray, after: np.ndarray, group) -> float:
+    """The 99th percentile, in degrees, of the angles between rotations ``before`` and ``after``
+    ``(n, r, r)`` (0 if none): how far a unit pass turned the map, one loosely held pose aside."""
+    if not len(after):
+        return 0.0
+    angles = np.linalg.norm(group.rotations.log(np.swapaxes(before, 1, 2) @ after).reshape(len(after), -1), axis=1)
+    return float(np.degrees(np.percentile(angles, 99)))
+
+
+def _translations(graph: PoseGraph, basis: np.ndarray, rotations: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """``(n + L, r)``: the poses' translations and the points' positions of the last stage, rotations
+    held. Its factors (``t_j − t_i = R_i t_Z``, ``p − t_i = R_i v``, ``p = z``) are ``±I`` with an
+    isotropic weight, so the ``r`` coordinates do not interact: one scalar system over the ``n + L``
+    blocks with ``r`` right-hand sides, ``r²`` times fewer entries than the coordinates together."""
+    n, r = graph.num_vertices, basis.shape[1]
+    factors = [_edge_factors(graph, basis, rotations)] + _landmark_factors(graph, basis, rotations, n)
+    scalar = [replace(f, A_a=f.A_a[:, :1, :1], A_b=f.A_b[:, :1, :1], w=f.w[:, :1]) for f in factors]
+    system = BlockNormalEquations(np.ones(len(known), np.int64), known, [(f.a, f.b) for f in scalar])
+    values = np.concatenate([graph.poses[:, :r, r], graph.landmarks.positions])
+    g = np.stack([system.right_hand_side([replace(f, y=f.y[:, axis, None]) for f in scalar], values[:, axis, None])
+                  for axis in range(r)], axis=1)  # fmt: skip
+    x = system.solve(system.matrix(scalar), g)
+    return _blocks(x.reshape(-1), system.offsets * r, np.arange(len(known)), r, known, values)  # (offset·r: x row-major)
+
+
+def relaxed_start(graph: PoseGraph, *, unit_passes: int | None = None) -> np.ndarray:
     """Poses ``(n, k, k)`` of a landmark graph from the relaxation (module docstring); held ones as given.
 
     ``unit_passes``: how many times the rotation stage is solved again with the unit equations
-    (:func:`_relaxed_rotations`; 0: the plain relaxation).
+    (:func:`_relaxed_rotations`; 0: the plain relaxation); None: :data:`UNIT_PASSES`, then more until
+    settled (:data:`SETTLED_DEGREES`), :data:`MAX_UNIT_PASSES` at most.
 
     Raises :class:`~posegraph.linalg.cholmod.NotPositiveDefiniteError` when the relaxed system is
     singular (a pose or point its terms do not fix), for the caller to start otherwise.
@@ -330,9 +273,7 @@ def relaxed_start(graph: PoseGraph, *, unit_passes: int = UNIT_PASSES) -> np.nda
     values = np.zeros((n + L, K + r))
     values[:n, :K], values[:n, K:] = rotation_coordinates(poses[:, :r, :r], basis), poses[:, :r, r]
     values[n:, :r] = graph.landmarks.positions
-    rotations = _relaxed_rotations(replace(graph, poses=poses), basis, known, values, unit_passes)
-    values = np.concatenate([poses[:, :r, r], graph.landmarks.positions])
-    factors = [_edge_factors(graph, basis, rotations)] + _landmark_factors(graph, basis, rotations, n)
-    triplets, g, offsets = _assemble(factors, np.full(n + L, r), known, values)
-    poses[:, :r, :r], poses[:, :r, r] = rotations, _blocks(_solve_normal(triplets, g), offsets, np.arange(n), r, known, values)
+    passes = (UNIT_PASSES, MAX_UNIT_PASSES) if unit_passes is None else (unit_passes, unit_passes)
+    rotations = _relaxed_rotations(replace(graph, poses=poses), basis, known, values, *passes)
+    poses[:, :r, :r], poses[:, :r, r] = rotations, _translations(graph, basis, rotations, known)[:n]
     return poses

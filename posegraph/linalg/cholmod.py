@@ -175,7 +175,9 @@ class SparseCholesky:
         self._threads = NativeThreads(threads)
         self.threads_active = self._threads.active
         self.ordering = ordering if permutation is None else "given"
-        if permutation is None and ordering in VERTEX_ORDERINGS:
+        if permutation is None and ordering == "amd" and self.n:
+            permutation = _pattern_order(self._matrix)  # the lower matrix just built: no second copy for AMD
+        elif permutation is None and ordering in VERTEX_ORDERINGS:
             permutation = fill_reducing_order(indptr, indices, self.n, ordering)
         elif permutation is None and ordering == "natural":
             permutation = np.arange(self.n)
@@ -439,11 +441,18 @@ def fill_reducing_order(indptr, indices, n: int, method: str = "amd") -> np.ndar
 def _approximate_minimum_degree(rows: np.ndarray, columns: np.ndarray, n: int) -> np.ndarray:
     """cvxopt's AMD order of the symmetric pattern whose lower triangle is ``rows``, ``columns``."""
     _require()
-    from cvxopt import amd, spmatrix
+    from cvxopt import spmatrix
 
-    pattern = spmatrix(1.0, _as_index_matrix(rows), _as_index_matrix(columns), (n, n))
+    return _pattern_order(spmatrix(1.0, _as_index_matrix(rows), _as_index_matrix(columns), (n, n)))
+
+
+def _pattern_order(lower) -> np.ndarray:
+    """cvxopt's AMD order ``(n,)`` int64 of the symmetric pattern of the cvxopt ``spmatrix`` ``lower``
+    (its lower triangle read; values ignored)."""
+    from cvxopt import amd
+
     with _options(amd):
-        order = amd.order(pattern, uplo="L")
+        order = amd.order(lower, uplo="L")
     return np.array(order, dtype=np.int64).ravel()
 
 

@@ -1,8 +1,8 @@
 """A landmark graph's start: its own values when they already fit its measurements, else the chordal start.
 
 A landmark graph's chordal start is a relaxation over its poses and points
-(:mod:`posegraph.init.relaxation`): three factorisations of a system larger than the solver's, as long
-as LM's iterations on the small files. Many files carry values a front end already refined (g2o's
+(:mod:`posegraph.init.relaxation`): three or more factorisations of a system larger than the solver's,
+as long as LM's iterations on the small files. Many files carry values a front end already refined (g2o's
 simulated worlds: their values are within 0.001 % of the optimum's cost on
 ``world-2000-lownoise-default``); LM from them takes as few iterations as from the relaxation, or fewer,
 to the same optimum. Others carry dead reckoning (Victoria Park, DLR), 10⁴ times the optimum's cost.
