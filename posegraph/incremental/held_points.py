@@ -42,7 +42,7 @@ RECENT = 32
 FUTURE_POINTS = 16
 """Point capacity beyond the landmark count (at least); the first of them get predicted blocks."""
 
-MAX_LEFT_OUT = 8
+MAX_LEFT_OUT = 16
 """Measurements whose pose–point block is outside the held pattern left out of H as low-rank terms before
 a new analysis is made (module docstring)."""
 
@@ -78,6 +78,7 @@ class HeldPoints:
         self.held_decoupled = np.zeros(0, dtype=np.int64)  # rows of the points the held factor decoupled
         self.left_out: dict = {}  # (kind, tag) -> (k,) measurements (family order) left out of H
         self.in_matrix = np.zeros(0, dtype=bool)  # (capacity,) points with a measurement placed in H
+        self.left_out_taken = 0  # measurements left out so far, over every analysis (a statistic)
 
     max_left_out = MAX_LEFT_OUT
     """Measurements left out of H (low-rank terms) before an analysis (0: every missing block re-analyses)."""
@@ -160,6 +161,7 @@ class HeldPoints:
         if self.left_out_count() + rows.shape[0] > self.max_left_out or not np.all(self.in_matrix[landmarks]):
             return False
         self.left_out[key] = np.concatenate([self.left_out.get(key, np.zeros(0, dtype=np.int64)), rows])
+        self.left_out_taken += rows.shape[0]
         return True
 
     def _positions(self):
