@@ -296,8 +296,8 @@ class WholeGraph:
         return block_permutation(order, pattern.sizes if pattern.point_size else pattern.block_size)  # (points: two sizes)
 
     def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
-        """Numeric factorisation of ``data`` (H without the left-out edges and measurements) held for the next steps
-        (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
+        """Numeric factorisation of ``data`` (H without the left-out edges and measurements) held for the
+        next steps (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
         self.held_factor = None
         self.factor.factorize(data)
         self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
