@@ -6,8 +6,16 @@ FUTURE_POINTS more): the points not yet added, and those no measurement reaches 
 the poses to come are (unit diagonal, zero gradient). Besides the pose–point blocks of every
 measurement so far it holds the blocks the next sightings are likely to need, so that most of them
 cost only their scatter positions: the poses of the next AHEAD vertices joined to every landmark seen
-by the last RECENT poses and to the points to come. A measurement whose block is missing, a capacity
-exceeded or a ``FIX`` flag changed makes a new analysis.
+by the last RECENT poses and to the points to come. A capacity exceeded or a ``FIX`` flag changed makes a
+new analysis.
+
+**Left-out measurements.** A measurement whose pose–point block is missing (a landmark seen again after a
+gap longer than RECENT poses) is left out of the factorised matrix: its Hessian positions are ``nnz``
+(dropped), its gradient rows kept, and its whole ``(d+s)×(d+s)`` Hessian, linearised at the current point,
+is one of the held factor's low-rank terms at every step (:meth:`HeldPoints.terms`), through every
+refactorisation until the next analysis puts its block in the pattern. Up to MAX_LEFT_OUT are left out
+before a new analysis is made; one whose point has no measurement in H yet makes one at once (H without it
+would be singular there).
 
 Scatter positions come from the pattern's own placement (:attr:`HessianPattern.placement
 <posegraph.solve.sparsity.HessianPattern.placement>`: ``pair_positions`` for a pose–point measurement,
@@ -23,7 +31,7 @@ import numpy as np
 from posegraph.incremental.store import Rows
 from posegraph.solve.sparsity import PointFamily, PointVariables
 
-__all__ = ["HeldPoints", "AHEAD", "RECENT", "FUTURE_POINTS"]
+__all__ = ["HeldPoints", "AHEAD", "RECENT", "FUTURE_POINTS", "MAX_LEFT_OUT"]
 
 AHEAD = 64
 """Poses to come whose blocks with the recently seen landmarks (and the points to come) an analysis adds."""
@@ -33,6 +41,10 @@ RECENT = 32
 
 FUTURE_POINTS = 16
 """Point capacity beyond the landmark count (at least); the first of them get predicted blocks."""
+
+MAX_LEFT_OUT = 16
+"""Measurements whose pose–point block is outside the held pattern left out of H as low-rank terms before
+a new analysis is made (module docstring)."""
 
 
 def _diagonal(at, variables: np.ndarray, z: int) -> np.ndarray:
@@ -64,9 +76,18 @@ class HeldPoints:
         self.placed: dict = {}  # (kind, tag) -> (hessian positions Rows, gradient rows Rows)
         self.held_counts: dict = {}  # (kind, tag) -> measurements in the held factor (factored)
         self.held_decoupled = np.zeros(0, dtype=np.int64)  # rows of the points the held factor decoupled
+        self.left_out: dict = {}  # (kind, tag) -> (k,) measurements (family order) left out of H
+        self.in_matrix = np.zeros(0, dtype=bool)  # (capacity,) points with a measurement placed in H
+        self.left_out_taken = 0  # measurements left out so far, over every analysis (a statistic)
+
+    max_left_out = MAX_LEFT_OUT
+    """Measurements left out of H (low-rank terms) before an analysis (0: every missing block re-analyses)."""
 
     def reset(self) -> None:
-        self.placed = {}
+        self.placed, self.left_out = {}, {}
+
+    def left_out_count(self) -> int:
+        return sum(rows.shape[0] for rows in self.left_out.values())
 
     def covered(self) -> bool:
         """Whether the analysis's points still fit: count within capacity, ``FIX`` flags as analysed."""
@@ -77,11 +98,12 @@ class HeldPoints:
         """The points for a new analysis at ``n`` poses of capacity ``pose_capacity`` (module docstring);
         None without landmarks."""
         count = self.store.count
-        self.placed = {}
+        self.placed, self.left_out = {}, {}
         if count == 0:
             self.capacity, self.fixed = 0, np.zeros(0, dtype=bool)
             return None
         self.capacity = max(int(1.1 * count) + 1, count + FUTURE_POINTS)
+        self.in_matrix = np.zeros(self.capacity, dtype=bool)
         self.fixed = np.zeros(self.capacity, dtype=bool)
         self.fixed[:count] = self.store.fixed.view
         pose, point = self.store.observed_pairs()
@@ -99,8 +121,10 @@ class HeldPoints:
         return np.repeat(poses, points.shape[0]), np.tile(points, poses.shape[0])
 
     def place(self, pattern, keys: np.ndarray) -> bool:
-        """Scatter positions of the measurements not yet placed; False when one's pose–point block is not
-        in ``pattern`` (``keys``: sorted ``col·p + row`` of its off-diagonal blocks)."""
+        """Scatter positions of the measurements not yet placed; those whose pose–point block is not in
+        ``pattern`` (``keys``: sorted ``col·p + row`` of its off-diagonal blocks) left out of H (module
+        docstring). False when they would pass ``max_left_out``, or one's point has nothing in H: a new
+        analysis is due."""
         d, s, at = self.d, self.s, pattern.placement
         for key, family in self.store.families.items():
             if key not in self.placed:
@@ -110,19 +134,34 @@ class HeldPoints:
             start = hessian.n
             if start == family.count:
                 continue
-            point = pattern.point_variable_of[family.landmark.view[start:]]
+            landmark = family.landmark.view[start:]
+            point = pattern.point_variable_of[landmark]
             if family.kind == "prior":
+                self.in_matrix[landmark] = True
                 hessian.extend(_diagonal(at, point, s))
                 gradient.extend(at.rows(point, s))
                 continue
             pose = pattern.variable_of[family.pose.view[start:]]
             both = (pose >= 0) & (point >= 0)
-            wanted = pose[both] * pattern.num_variables + point[both]
-            slot = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
-            if wanted.shape[0] and (keys.shape[0] == 0 or np.any(keys[slot] != wanted)):
+            slot, found = _find(keys, pose[both] * pattern.num_variables + point[both])
+            missing = np.flatnonzero(both)[~found]
+            self.in_matrix[np.delete(landmark, missing)] = True
+            if missing.shape[0] and not self._leave_out(key, start + missing, landmark[missing]):
                 return False
-            hessian.extend(np.concatenate([_diagonal(at, pose, d), _diagonal(at, point, s), _crossed(at, both, slot, d, s)], axis=1))
+            positions = np.concatenate([_diagonal(at, pose, d), _diagonal(at, point, s),
+                                        _crossed(at, both, slot, d, s)], axis=1)
+            positions[missing] = at.nnz  # left out of H entirely: a low-rank term adds it back
+            hessian.extend(positions)
             gradient.extend(np.concatenate([at.rows(pose, d), at.rows(point, s)], axis=1))
+        return True
+
+    def _leave_out(self, key, rows: np.ndarray, landmarks: np.ndarray) -> bool:
+        """Record measurements ``rows`` ``(k,)`` of family ``key`` (of points ``landmarks``) as left out of H;
+        False (nothing recorded) past ``max_left_out`` or when one's point has no measurement in H."""
+        if self.left_out_count() + rows.shape[0] > self.max_left_out or not np.all(self.in_matrix[landmarks]):
+            return False
+        self.left_out[key] = np.concatenate([self.left_out.get(key, np.zeros(0, dtype=np.int64)), rows])
+        self.left_out_taken += rows.shape[0]
         return True
 
     def _positions(self):
@@ -153,16 +192,20 @@ class HeldPoints:
         self.held_decoupled = self.decoupled_rows(pattern)
 
     def terms(self, pattern, terms, blocks):
-        """``terms`` with the landmark measurements added since the factorisation (:meth:`factored`) as
-        low-rank terms, at their linearisation ``blocks`` (``LandmarkBlocks``), minus the unit diagonal of
-        the points the factor decoupled that measurements reach now."""
+        """``terms`` with the landmark measurements not in the held factor — added since it was made
+        (:meth:`factored`) or left out of H — as low-rank terms, at their linearisation ``blocks``
+        (``LandmarkBlocks``), minus the unit diagonal of the points the factor decoupled that measurements
+        reach now."""
         d, s = self.d, self.s
         columns, values = [], []
         for (key, family), h in zip(((k, f) for k, f in self.store.families.items() if f.count), blocks.hessian):
             start = self.held_counts.get(key, 0)
-            if start < family.count:
-                columns.append(self.placed[key][1].view[start:])
-                values.append(_measurement_blocks(family, h, d, s, start))
+            rows = np.arange(start, family.count)
+            if key in self.left_out:
+                rows = np.union1d(self.left_out[key], rows)
+            if rows.shape[0]:
+                columns.append(self.placed[key][1].view[rows])
+                values.append(_measurement_blocks(family, h, d, s, rows))
         unit = np.setdiff1d(self.held_decoupled, self.decoupled_rows(pattern))
         if not columns and not unit.shape[0]:
             return terms
@@ -184,15 +227,22 @@ class HeldPoints:
         return (pattern.offsets[variable][:, None] + np.arange(s)).ravel()
 
 
-def _measurement_blocks(family, h: np.ndarray, d: int, s: int, start: int) -> np.ndarray:
-    """``(q', c, c)`` the full Hessian of each measurement from row ``start`` of ``family``, from its raveled
+def _find(keys: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(slot, found)`` ``(w,)``: where each of ``wanted`` (block keys) is or would be in the sorted ``keys``."""
+    slot = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
+    found = keys[slot] == wanted if keys.shape[0] else np.zeros(wanted.shape[0], dtype=bool)
+    return slot, found
+
+
+def _measurement_blocks(family, h: np.ndarray, d: int, s: int, rows: np.ndarray) -> np.ndarray:
+    """``(k, c, c)`` the full Hessian of the measurements ``rows`` ``(k,)`` of ``family``, from its raveled
     blocks ``h`` (``[H_pp, H_ll, H_pl]``; priors ``H_ll``): ``[[H_pp, H_pl], [H_plᵀ, H_ll]]``, c = d + s (priors s)."""
     q = family.count
     if family.kind == "prior":
-        return h.reshape(q, s, s)[start:]
-    pp = h[: q * d * d].reshape(q, d, d)[start:]
-    ll = h[q * d * d : q * (d * d + s * s)].reshape(q, s, s)[start:]
-    pl = h[q * (d * d + s * s) :].reshape(q, d, s)[start:]
+        return h.reshape(q, s, s)[rows]
+    pp = h[: q * d * d].reshape(q, d, d)[rows]
+    ll = h[q * d * d : q * (d * d + s * s)].reshape(q, s, s)[rows]
+    pl = h[q * (d * d + s * s) :].reshape(q, d, s)[rows]
     return np.concatenate([np.concatenate([pp, pl], axis=2), np.concatenate([np.swapaxes(pl, 1, 2), ll], axis=2)], axis=1)
 
 

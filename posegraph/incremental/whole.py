@@ -14,7 +14,7 @@ what does not change between updates is kept:
   scatter positions. Up to MAX_LEFT_OUT edges whose block is missing are left out of the factorised
   matrix and added back exactly as low-rank terms of the held factor (below);
   the analysis is redone when more are missing, the capacity is exceeded, the held set (FIX, anchors)
-  changed, or H without the left-out edges is singular — amortised over many updates. It orders the
+  changed, or H without the left-out terms is singular — amortised over many updates. It orders the
   vertex graph (AMD on p nodes), expanded to the blocks.
 * **The factor, held (:mod:`posegraph.incremental.held_factor`).** The last numeric factorisation
   ``H0`` (made at an earlier point, over the edges then present) is kept across steps *and updates*;
@@ -32,10 +32,11 @@ what does not change between updates is kept:
 * **Landmarks** (:mod:`posegraph.incremental.held_points`). The analysis gives the points variables of
   their own block size after the poses', for a capacity of points too, with the pose–point blocks of
   every measurement and those the next sightings are likely to need; a landmark update is Gauss-Newton
-  here like a loop closure, the points retracted ``p + δ`` with the poses. A measurement whose block is
-  missing makes a new analysis (no left-out landmark terms). The measurements added since the held
-  factor was made are low-rank terms of it (their full pose–point Hessians, minus the unit diagonal of
-  the points it decoupled): a re-sighting is a held step, not a factorisation.
+  here like a loop closure, the points retracted ``p + δ`` with the poses. Up to
+  ``HeldPoints.max_left_out`` measurements whose block is missing (a landmark seen again after a gap) are
+  left out of the factorised matrix as the left-out edges are. The measurements added since the held
+  factor was made and the left-out ones are low-rank terms of it (their full pose–point Hessians, minus
+  the unit diagonal of the points it decoupled): a re-sighting is a held step, not a factorisation.
 * **The last linearisation.** A solve ends linearised at its final point; the next one starts from
   that evaluation and linearisation with only the new edges and landmark measurements computed
   (:mod:`posegraph.incremental.reuse`), as long as no old pose or point moved in between (odometry and
@@ -295,8 +296,8 @@ class WholeGraph:
         return block_permutation(order, pattern.sizes if pattern.point_size else pattern.block_size)  # (points: two sizes)
 
     def _factorize(self, data: np.ndarray, n: int, weighted: bool, blocks) -> None:
-        """Numeric factorisation of ``data`` (H without the left-out edges) held for the next steps
-        (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
+        """Numeric factorisation of ``data`` (H without the left-out edges and measurements) held for the
+        next steps (:class:`~posegraph.incremental.held_factor.HeldFactor`); raises NotPositiveDefiniteError."""
         self.held_factor = None
         self.factor.factorize(data)
         self.held_factor = HeldFactor(self.factor, n, self.store.num_edges, self._prior_count(), weighted, blocks)
@@ -323,7 +324,7 @@ class WholeGraph:
             parts.append((*(-h for h in held.blocks.hessian_slice(old)), *ends(old)))
         parts += _prior_changes(blocks, held.blocks, variable)
         new = variable[held.vertices : n]
-        self.corrections += bool(self.left_out.shape[0])  # steps with left-out edges among the terms
+        self.corrections += self._leaves_out()  # steps with left-out edges or measurements among the terms
         terms = edge_terms(parts, self.pattern.block_size, new[new >= 0])
         return self.points.terms(self.pattern, terms, blocks.landmarks) if self.pattern.point_size else terms
 
@@ -369,15 +370,15 @@ class WholeGraph:
 
     def _fresh(self, blocks, held: np.ndarray, n: int, weighted: bool = True) -> np.ndarray | None:
         """H assembled and factorised at ``blocks``, held with its terms at ``blocks`` (the left-out
-        edges'); the gradient ``g`` ``(D,)``, or None when H is not positive definite. H without
-        left-out edges may be singular (a vertex joined only by them): then every edge goes in the
-        pattern (a new analysis) and the factorisation is tried again."""
+        edges' and measurements'); the gradient ``g`` ``(D,)``, or None when H is not positive definite. H
+        without the left-out terms may be singular (a vertex joined only by them): then every edge and
+        measurement goes in the pattern (a new analysis) and the factorisation is tried again."""
         for attempt in range(2):
             data, g = self._system(blocks, n, True)
             try:
                 self._factorize(data, n, weighted, blocks)
             except NotPositiveDefiniteError:
-                if attempt or not self.left_out.shape[0]:
+                if attempt or not self._leaves_out():
                     return None
                 self._analyse(held)
                 continue
@@ -385,6 +386,10 @@ class WholeGraph:
             self.held_factor.terms = self._low_rank(blocks, n)
             return g
         return None
+
+    def _leaves_out(self) -> bool:
+        """Whether edges or landmark measurements are left out of the factorised matrix."""
+        return bool(self.left_out.shape[0]) or (self.points is not None and self.points.left_out_count() > 0)
 
     def _solve_full(self, rhs: np.ndarray) -> np.ndarray:
         """``H̃⁻¹ rhs`` ``(D,)`` or ``(D, r)``: the held factor with the low-rank terms it last solved with."""

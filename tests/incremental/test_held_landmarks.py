@@ -202,3 +202,96 @@ def test_measurements_since_the_factor_are_exact_low_rank_terms():
     got = _dense(whole.pattern, partial)
     got[np.ix_(terms.columns, terms.columns)] += terms.matrix
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
+
+
+RESIGHT_AT = 80  # the pose that sees landmarks 0 and 1 again, ~78 poses after they were last seen
+SIGMA = 0.1  # of the sightings (odometry 0.02): the drift over the gap is not a drastic update (a batch solve)
+
+
+def _resighted_graph(case: str, poses: int = 100, landmarks: int = 30, seed: int = 7):
+    """Landmark ``l`` seen by poses ``3l .. 3l+2``; landmarks 0 and 1 seen again by poses RESIGHT_AT ..
+    RESIGHT_AT+3, after a gap longer than RECENT (and than AHEAD): their blocks are in no analysis then."""
+    from datasets.synthetic import LANDMARK_TAGS
+    from posegraph.model.landmarks import Observations, measurement_size
+    from posegraph.solve.landmark_residuals import landmark_residuals
+
+    group, (kind,), _ = CASES[case]
+    graph, truth, points = landmark_graph(group, poses, landmarks, (kind,), noise=0.02, seed=seed)
+    again = RESIGHT_AT + np.arange(4)
+    pose = np.concatenate([(3 * np.arange(landmarks)[:, None] + np.arange(3)).ravel(), again, again])
+    landmark = np.concatenate([np.repeat(np.arange(landmarks), 3), np.repeat([0, 1], 4)])
+    r = measurement_size(kind, group.space_dim)
+    zero = Observations(kind, pose, landmark, np.zeros((pose.size, r)), np.zeros((pose.size, r, r)))
+    z = landmark_residuals(group, truth, points, zero) + SIGMA * np.random.default_rng(seed).standard_normal((pose.size, r))
+    family = Observations(kind, pose, landmark, z, np.broadcast_to(np.eye(r) / SIGMA**2, (pose.size, r, r)).copy(),
+                          tag=LANDMARK_TAGS[(kind, group.space_dim)])
+    return replace(graph, landmarks=replace(graph.landmarks, observations=(family,)))
+
+
+def _left_out_terms_complete_h(opt) -> None:
+    """H as the held analysis scatters it (left-out measurements dropped) plus the left-out measurements'
+    low-rank terms at the current point equals the batch solver's H there."""
+    from posegraph.incremental.held_factor import LowRankTerms
+
+    whole, held = opt._whole, opt.held()
+    points_side = whole.points
+    estimate = replace(opt.graph(), fixed=held)
+    n, count, d, s = estimate.num_vertices, estimate.landmarks.count, estimate.group.dim, estimate.group.space_dim
+    objective = whole._objective(held)
+    points = estimate.landmarks.positions
+    blocks = objective.linearize(estimate.poses, objective.evaluate(estimate.poses, points))
+    data, _ = whole._system(blocks, n, True)
+    saved = points_side.held_counts, points_side.held_decoupled
+    points_side.held_counts = {key: family.count for key, family in points_side.store.families.items()}
+    points_side.held_decoupled = points_side.decoupled_rows(whole.pattern)
+    try:  # as a factor made now would see them: the left-out measurements are the only terms
+        terms = points_side.terms(whole.pattern, LowRankTerms.empty(), blocks.landmarks)
+    finally:
+        points_side.held_counts, points_side.held_decoupled = saved
+    got = _dense(whole.pattern, data)
+    got[np.ix_(terms.columns, terms.columns)] += terms.matrix
+    mixed = analyze_pattern(n, estimate.edge_from, estimate.edge_to, held, d, point_variables(estimate))
+    expected = _dense(mixed, _solver_hessian(estimate, mixed, estimate.poses, points))
+    ours, theirs = _rows(whole.pattern, n, count, d, s), _rows(mixed, n, count, d, s)
+    assert terms.columns.shape[0] > 0
+    np.testing.assert_allclose(got[np.ix_(ours, ours)], expected[np.ix_(theirs, theirs)], rtol=1e-10, atol=1e-8)
+
+
+def _replay_resighted(graph, check_terms: bool):
+    """Replay ``graph`` one pose at a time, every solving update's estimate against the batch optimum;
+    ``(analyses after each update, left-out measurements after each update)``."""
+    analyses, left_out = [], []
+
+    def check(result, number):
+        opt = result.optimizer
+        analyses.append(opt._whole.analyses)
+        left_out.append(opt._whole.points.left_out_count() if opt._whole.points is not None else 0)
+        if opt.last_update.kind in ("whole", "full") and opt.landmark_ids.shape[0]:
+            poses, points = _batch(opt)
+            scale = max(1.0, np.abs(points).max())
+            assert np.abs(opt.poses - poses).max() <= EXACT * scale, number
+            assert np.abs(opt.landmark_positions - points).max() <= EXACT * scale, number
+        if check_terms and left_out[-1] and opt.last_update.kind == "whole":
+            _left_out_terms_complete_h(opt)
+
+    result = replay(graph, optimizer=IncrementalOptimizer(graph.group, tolerance=TIGHT), progress=check)
+    return result, np.array(analyses), np.array(left_out)
+
+
+@pytest.mark.parametrize("case", ["SE2-bearing-range", "SE3-position"])
+def test_a_landmark_seen_again_after_a_gap_is_a_left_out_term_not_an_analysis(case, monkeypatch):
+    """Landmarks re-sighted after a gap longer than RECENT: their measurements are left out of H as low-rank
+    terms (no new analysis at those updates), H without them plus their terms is the batch H, and every
+    update's estimate is the batch optimum."""
+    from posegraph.incremental.held_points import HeldPoints
+
+    graph = _resighted_graph(case)
+    result, analyses, left_out = _replay_resighted(graph, check_terms=True)
+    at = RESIGHT_AT  # update RESIGHT_AT adds pose RESIGHT_AT: analyses[at] is the count after it
+    assert "full" not in result.kinds and result.kinds[at] == "whole"
+    assert left_out[at] == 2 and analyses[at] == analyses[at - 1], (left_out[at - 2 : at + 4], analyses[at - 2 : at + 4])
+    assert left_out[at + 1] == 4 and analyses[at + 1] == analyses[at]
+    # without left-out measurements the same re-sighting makes an analysis: the case above tests something
+    monkeypatch.setattr(HeldPoints, "max_left_out", 0)
+    result, analyses, left_out = _replay_resighted(graph, check_terms=False)
+    assert not left_out.any() and analyses[at] == analyses[at - 1] + 1
