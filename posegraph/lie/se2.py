@@ -51,6 +51,7 @@ from posegraph.lie.so3 import (
     _exp_coefficients,
     _from_entries,
     _from_vector,
+    _half_cot,
     _inverse_jacobian_coefficients,
 )
 
@@ -192,7 +193,7 @@ def exp(xi) -> np.ndarray:
     ``(..., 3) -> (..., 3, 3)``; equals gtsam's ``Pose2.Expmap``.
     """
     (v0, v1, w), batch = _components(xi, (3,), "xi")
-    a, b, _ = _exp_coefficients(np.abs(w))
+    a, b = _exp_coefficients(np.abs(w), 2)
     cos, sin = np.cos(w), np.sin(w)
     wb = w * b  # = (1 − cos ω)/ω
     t0 = a * v0 - wb * v1
@@ -209,7 +210,7 @@ def log(T) -> np.ndarray:
     """
     r, t, batch = _pose_components(T)
     w = np.arctan2(r[2] - r[1], r[0] + r[3])
-    e, _ = _inverse_jacobian_coefficients(np.abs(w))
+    e = _half_cot(np.abs(w))
     half = 0.5 * w
     return _from_vector([e * t[0] + half * t[1], e * t[1] - half * t[0], w], batch)
 
@@ -348,7 +349,7 @@ def edge_errors(Z, Xi, Xj) -> tuple[np.ndarray, np.ndarray]:
     relative = _between_entries(_entries(Xi, batch), _entries(Xj, batch))
     e = _between_entries(_entries(Z, batch), relative)
     w = np.arctan2(e[2] - e[1], e[0] + e[3])
-    coefficient, _ = _inverse_jacobian_coefficients(np.abs(w))
+    coefficient = _half_cot(np.abs(w))
     half = 0.5 * w
     log_e = _from_vector([coefficient * e[4] + half * e[5], coefficient * e[5] - half * e[4], w], batch)
     return _pose_from(relative[:4], relative[4:], batch), log_e

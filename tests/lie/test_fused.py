@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from posegraph.lie import so3
 from posegraph.lie.group import SE2, SE3, SIM3
 from tests.lie.helpers import EDGE_ANGLES, SE2_CASE, SE3_CASE
 
@@ -51,3 +52,10 @@ def test_adjoint_of_inverse_equals_adjoint_of_the_inverse_bit_for_bit(name):
 def test_groups_take_the_fused_forms_where_their_module_has_them():
     assert SE3.edge_errors is not None and SE2.adjoint_of_inverse is not None
     assert SIM3.edge_errors is None and SIM3.adjoint_of_inverse is None  # its residual composes between and log
+
+
+def test_the_coefficients_se2_takes_alone_equal_those_of_the_full_sets_bit_for_bit():
+    """``Exp`` of SE(2) takes ``A, B`` without ``C``, its ``Log`` ``E`` without ``D``: both branches, the switch, π."""
+    theta = np.abs(np.concatenate([SE2_CASE.at_angle(angle, 8)[:, 2] for angle in EDGE_ANGLES] + [np.linspace(0.0, 3.0, 61)]))
+    assert np.array_equal(np.stack(so3._exp_coefficients(theta, 2)), np.stack(so3._exp_coefficients(theta)[:2]))
+    assert np.array_equal(so3._half_cot(theta), so3._inverse_jacobian_coefficients(theta)[0])
