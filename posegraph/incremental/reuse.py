@@ -113,7 +113,8 @@ def _joined_evaluation(old: Evaluation, new: Evaluation) -> Evaluation:
     return Evaluation(relative=np.concatenate([old.relative, new.relative]),
                       residuals=np.concatenate([old.residuals, new.residuals]),
                       cost=old.cost + new.cost, weights=_join(old.weights, new.weights), points=new.points,
-                      landmarks=landmarks, landmark_weights=weights)
+                      landmarks=landmarks, landmark_weights=weights,
+                      weighted_residuals=_join(old.weighted_residuals, new.weighted_residuals))
 
 
 def _joined_landmark_blocks(old, new, d: int):

@@ -71,6 +71,11 @@ class LieGroup:
     """``(…, k, k) -> (…, d)``: the ``Log`` edge residuals use when a file format defines its cost with
     its own (g2o's ``EdgeSim3``: :func:`posegraph.lie.sim3.g2o_log`, first-order near θ = 0 and
     λ = 0); None: :attr:`log`. The Jacobians are those of :attr:`log` either way."""
+    edge_errors: Callable | None = None
+    """``(Z, X_i, X_j) -> (X_i⁻¹X_j (…, k, k), Log(Z⁻¹X_i⁻¹X_j) (…, d))`` in one pass, bit for bit :attr:`between`
+    then :attr:`log` (:func:`posegraph.lie.se2.edge_errors`); None: the residuals compose those two."""
+    adjoint_of_inverse: Callable | None = None
+    """``(…, k, k) -> (…, d, d)``: ``Ad(X⁻¹)`` in one pass, bit for bit :attr:`adjoint` of :attr:`inverse`; None: those two."""
 
     @property
     def edge_log(self) -> Callable:
@@ -105,6 +110,7 @@ class LieGroup:
         by the solver's Jacobians too); the lookup costs ~0.1 µs per batched call.
         """
         functions = {f: _forward(module, f) for f in _FUNCTIONS}
+        functions.update({f: _forward(module, f) for f in _FUSED if hasattr(module, f)})
         return cls(
             name=name, dim=dim, matrix_size=matrix_size, **functions,
             rotation_axes=tuple(rotation_axes), translation_axes=tuple(translation_axes), rotations=rotations,
@@ -131,6 +137,9 @@ _FUNCTIONS = (
     "exp", "log", "inverse", "compose", "between", "adjoint", "right_jacobian", "right_jacobian_inverse",
     "left_jacobian_inverse",
 )
+
+_FUSED = ("edge_errors", "adjoint_of_inverse")
+"""Optional one-pass forms of compositions the solver's hot path runs (a module without them gets None)."""
 
 SE3 = LieGroup.of("SE3", se3, 6, 4, rotation_axes=(0, 1, 2), translation_axes=(3, 4, 5), rotations=so3)
 """Rigid motions in 3D: ``(…, 4, 4)`` matrices, tangent ``[ω; v]``."""

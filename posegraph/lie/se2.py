@@ -51,6 +51,7 @@ from posegraph.lie.so3 import (
     _exp_coefficients,
     _from_entries,
     _from_vector,
+    _half_cot,
     _inverse_jacobian_coefficients,
 )
 
@@ -68,6 +69,8 @@ __all__ = [
     "inverse",
     "compose",
     "between",
+    "edge_errors",
+    "adjoint_of_inverse",
     "act",
     "from_rotation_translation",
     "rotation",
@@ -190,7 +193,7 @@ def exp(xi) -> np.ndarray:
     ``(..., 3) -> (..., 3, 3)``; equals gtsam's ``Pose2.Expmap``.
     """
     (v0, v1, w), batch = _components(xi, (3,), "xi")
-    a, b, _ = _exp_coefficients(np.abs(w))
+    a, b = _exp_coefficients(np.abs(w), 2)
     cos, sin = np.cos(w), np.sin(w)
     wb = w * b  # = (1 − cos ω)/ω
     t0 = a * v0 - wb * v1
@@ -207,7 +210,7 @@ def log(T) -> np.ndarray:
     """
     r, t, batch = _pose_components(T)
     w = np.arctan2(r[2] - r[1], r[0] + r[3])
-    e, _ = _inverse_jacobian_coefficients(np.abs(w))
+    e = _half_cot(np.abs(w))
     half = 0.5 * w
     return _from_vector([e * t[0] + half * t[1], e * t[1] - half * t[0], w], batch)
 
@@ -321,6 +324,45 @@ def between(a, b) -> np.ndarray:
     r = [ra[i] * rb[j] + ra[2 + i] * rb[2 + j] for i in range(2) for j in range(2)]
     t = [ra[i] * d[0] + ra[2 + i] * d[1] for i in range(2)]
     return _pose_from(r, t, batch)
+
+
+def _entries(T, batch) -> tuple:
+    """``(r0, r1, r2, r3, t0, t1)`` of ``T`` ``(*batch, 3, 3)``: 1-D strided views, no copies."""
+    flat = np.broadcast_to(_as_float(T), batch + (3, 3)).reshape(-1, 9)
+    return flat[:, 0], flat[:, 1], flat[:, 3], flat[:, 4], flat[:, 2], flat[:, 5]
+
+
+def _between_entries(a, b) -> tuple:
+    """The entries of ``a⁻¹ b`` from those of ``a`` and ``b`` (:func:`_entries`), as :func:`between` computes them."""
+    d = (b[4] - a[4], b[5] - a[5])
+    r = [a[i] * b[j] + a[2 + i] * b[2 + j] for i in range(2) for j in range(2)]
+    return (*r, a[0] * d[0] + a[2] * d[1], a[1] * d[0] + a[3] * d[1])
+
+
+def edge_errors(Z, Xi, Xj) -> tuple[np.ndarray, np.ndarray]:
+    """``(Xi⁻¹ Xj (..., 3, 3), Log(Z⁻¹ Xi⁻¹ Xj) (..., 3))``: the relative pose of an edge and its residual.
+
+    Bit for bit ``between(Xi, Xj)`` and ``log(between(Z, ·))`` of it (the same operations), each input
+    read once and the relative pose's entries not read back: an edge pass has one fixed cost, not three.
+    """
+    batch = _broadcast_batch((Z, (3, 3)), (Xi, (3, 3)), (Xj, (3, 3)))
+    relative = _between_entries(_entries(Xi, batch), _entries(Xj, batch))
+    e = _between_entries(_entries(Z, batch), relative)
+    w = np.arctan2(e[2] - e[1], e[0] + e[3])
+    coefficient = _half_cot(np.abs(w))
+    half = 0.5 * w
+    log_e = _from_vector([coefficient * e[4] + half * e[5], coefficient * e[5] - half * e[4], w], batch)
+    return _pose_from(relative[:4], relative[4:], batch), log_e
+
+
+def adjoint_of_inverse(T) -> np.ndarray:
+    """``Ad(T⁻¹) = [[Rᵀ, [−(R₀₁ t₀ + R₁₁ t₁), R₀₀ t₀ + R₁₀ t₁]ᵀ], [0, 1]]`` (``(..., 3, 3)``): bit for bit
+    ``adjoint(inverse(T))`` in one pass (``∂e/∂δ_i`` of an edge needs ``Ad(X_j⁻¹ X_i)``)."""
+    _check_last(_as_float(T), (3, 3), "T")
+    batch = np.shape(T)[:-2]
+    r0, r1, r2, r3, t0, t1 = _entries(T, batch)
+    s0, s1 = -(r0 * t0 + r2 * t1), -(r1 * t0 + r3 * t1)  # Rᵀ t, negated as inverse() does
+    return _from_entries([[r0, r2, s1], [r1, r3, -s0], [*_BOTTOM_ROW]], batch)
 
 
 def act(T, p) -> np.ndarray:

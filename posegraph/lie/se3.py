@@ -69,6 +69,8 @@ __all__ = [
     "inverse",
     "compose",
     "between",
+    "edge_errors",
+    "adjoint_of_inverse",
     "act",
     "from_rotation_translation",
     "rotation",
@@ -185,6 +187,16 @@ def exp(xi) -> np.ndarray:
     return _from_entries([R[0] + [t[0]], R[1] + [t[1]], R[2] + [t[2]], [0.0, 0.0, 0.0, 1.0]], batch)
 
 
+def _log_of(r, t, batch) -> np.ndarray:
+    """:func:`log` of the pose with rotation entries ``r`` (9, row-major) and translation ``t`` (3)."""
+    w = _log_components(r)
+    e, d = _inverse_jacobian_coefficients(_norm(*w))
+    wxt = _cross(w, t)
+    ds = d * (w[0] * t[0] + w[1] * t[1] + w[2] * t[2])
+    v = [e * t[i] - 0.5 * wxt[i] + ds * w[i] for i in range(3)]
+    return _from_vector([*w, *v], batch)
+
+
 def log(T) -> np.ndarray:
     """``Log(T) = [ω; Jl(ω)⁻¹ t]`` with ``ω = so3.log(R)`` (θ in ``[0, π]``).
 
@@ -192,13 +204,7 @@ def log(T) -> np.ndarray:
     ``(..., 4, 4) -> (..., 6)``; equals gtsam's ``Pose3.Logmap``.  The bottom row of ``T`` is
     ignored and ``R`` may be slightly off SO(3).
     """
-    r, t, batch = _pose_components(T)
-    w = _log_components(r)
-    e, d = _inverse_jacobian_coefficients(_norm(*w))
-    wxt = _cross(w, t)
-    ds = d * (w[0] * t[0] + w[1] * t[1] + w[2] * t[2])
-    v = [e * t[i] - 0.5 * wxt[i] + ds * w[i] for i in range(3)]
-    return _from_vector([*w, *v], batch)
+    return _log_of(*_pose_components(T))
 
 
 def _adjoint_entries(r, t):
@@ -342,15 +348,41 @@ def compose(a, b) -> np.ndarray:
     return _pose_from(*_product(ra, ta, rb, tb), batch)
 
 
+def _between_entries(ra, ta, rb, tb):
+    """Entries ``(r (9), t (3))`` of ``a⁻¹ b``: ``Raᵀ Rb`` and ``Raᵀ (tb − ta)``."""
+    d = [tb[i] - ta[i] for i in range(3)]
+    r = [ra[i] * rb[j] + ra[3 + i] * rb[3 + j] + ra[6 + i] * rb[6 + j] for i in range(3) for j in range(3)]
+    t = [ra[i] * d[0] + ra[3 + i] * d[1] + ra[6 + i] * d[2] for i in range(3)]
+    return r, t
+
+
 def between(a, b) -> np.ndarray:
     """``a⁻¹ · b = [[Raᵀ Rb, Raᵀ (tb − ta)], [0, 1]]`` (batch shapes broadcast)."""
     batch = _broadcast_batch((a, (4, 4)), (b, (4, 4)))
     ra, ta, _ = _pose_components(a, batch)
     rb, tb, _ = _pose_components(b, batch)
-    d = tb - ta
-    r = [ra[i] * rb[j] + ra[3 + i] * rb[3 + j] + ra[6 + i] * rb[6 + j] for i in range(3) for j in range(3)]
-    t = [ra[i] * d[0] + ra[3 + i] * d[1] + ra[6 + i] * d[2] for i in range(3)]
-    return _pose_from(r, t, batch)
+    return _pose_from(*_between_entries(ra, ta, rb, tb), batch)
+
+
+def edge_errors(Z, Xi, Xj) -> tuple[np.ndarray, np.ndarray]:
+    """``(Xi⁻¹ Xj (..., 4, 4), Log(Z⁻¹ Xi⁻¹ Xj) (..., 6))``: the relative pose of an edge and its residual.
+
+    Bit for bit ``between(Xi, Xj)`` and ``log(between(Z, ·))`` of it (the same operations), each input
+    read once and the relative pose's entries not read back from the matrix it is returned as.
+    """
+    batch = _broadcast_batch((Z, (4, 4)), (Xi, (4, 4)), (Xj, (4, 4)))
+    r, t = _between_entries(*_pose_components(Xi, batch)[:2], *_pose_components(Xj, batch)[:2])
+    rz, tz, _ = _pose_components(Z, batch)
+    return _pose_from(r, t, batch), _log_of(*_between_entries(rz, tz, r, t), batch)
+
+
+def adjoint_of_inverse(T) -> np.ndarray:
+    """``Ad(T⁻¹) = [[Rᵀ, 0], [−Rᵀ [t]×, Rᵀ]]`` (``(..., 4, 4) -> (..., 6, 6)``): bit for bit
+    ``adjoint(inverse(T))`` in one pass (``∂e/∂δ_i`` of an edge needs ``Ad(X_j⁻¹ X_i)``)."""
+    r, t, batch = _pose_components(T)
+    rt = [r[0], r[3], r[6], r[1], r[4], r[7], r[2], r[5], r[8]]
+    minus_rt_t = [-(rt[3 * i] * t[0] + rt[3 * i + 1] * t[1] + rt[3 * i + 2] * t[2]) for i in range(3)]
+    return _from_entries(_adjoint_entries(rt, minus_rt_t), batch)
 
 
 def act(T, p) -> np.ndarray:

@@ -156,9 +156,21 @@ def _closed_abc(theta: np.ndarray):
     return sin / theta, one_minus_cos / theta_sq, (theta - sin) / (theta_sq * theta)
 
 
-def _exp_coefficients(theta: np.ndarray):
-    """``(A, B, C)``; ``theta`` is 1-D."""
-    return _piecewise(theta, [_A_SERIES, _B_SERIES, _C_SERIES], _closed_abc)
+def _exp_coefficients(theta: np.ndarray, count: int = 3):
+    """``(A, B, C)``, the first ``count`` of them (SE(2)'s ``Exp`` needs no ``C``); ``theta`` is 1-D."""
+    if count == 3:
+        return _piecewise(theta, [_A_SERIES, _B_SERIES, _C_SERIES], _closed_abc)
+    return _piecewise(theta, [_A_SERIES, _B_SERIES, _C_SERIES][:count], lambda t: _closed_abc(t)[:count])
+
+
+def _half_cot(theta: np.ndarray) -> np.ndarray:
+    """``E = (θ/2)cot(θ/2)`` alone, as :func:`_inverse_jacobian_coefficients` computes it (SE(2)'s ``Log``
+    needs no ``D``: its Horner pass is half the coefficients' cost on small angles); ``theta`` is 1-D."""
+
+    def closed(t):
+        return (0.5 * t * np.cos(0.5 * t) / np.sin(0.5 * t),)
+
+    return _piecewise(theta, [_E_SERIES], closed)[0]
 
 
 def _jacobian_coefficients(theta: np.ndarray):

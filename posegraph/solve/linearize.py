@@ -31,7 +31,7 @@ import numpy as np
 
 from posegraph.model.graph import PoseGraph
 from posegraph.solve import residuals as _residuals
-from posegraph.solve.residuals import edge_errors, residual_jacobian_factors
+from posegraph.solve.residuals import edge_errors, residual_jacobian_factors, weighted_residuals
 
 __all__ = ["EdgeBlocks", "linearize"]
 
@@ -97,6 +97,7 @@ def linearize(
     information: np.ndarray | None = None,
     errors: tuple[np.ndarray, np.ndarray] | None = None,
     weights: np.ndarray | None = None,
+    weighted: np.ndarray | None = None,
 ) -> EdgeBlocks:
     """Residuals, cost and per-edge normal-equation blocks at ``poses`` ``(n, k, k)``.
 
@@ -104,7 +105,8 @@ def linearize(
     once (batched d×d products are several times slower on other memory layouts). ``errors`` is
     ``edge_errors(poses, graph)`` if already computed (the solver has it from evaluating the step).
     ``weights`` ``(m,)`` scales each edge's gradient and Hessian blocks (IRLS weights of a robust
-    loss, see the module docstring); None is the plain least-squares system.
+    loss, see the module docstring); None is the plain least-squares system. ``weighted`` ``(m, d)`` is
+    ``Ω e`` if already computed (an evaluation's, :attr:`posegraph.solve.objective.Evaluation.weighted_residuals`).
     """
     relative, residuals = edge_errors(poses, graph) if errors is None else errors
     if information is None:
@@ -117,13 +119,16 @@ def linearize(
     def compute(part):
         e = residuals[part]
         b, adjoint = residual_jacobian_factors(graph.group, e, relative[part])  # ∂e/∂δ_j = B
-        omega_e = information[part] @ e[..., None]
-        g_j = np.swapaxes(b, -1, -2) @ omega_e  # g_j = Bᵀ Ω e
+        omega_e = weighted_residuals(e, information[part]) if weighted is None else weighted[part]
+        gradient = np.empty(e.shape[:1] + (2,) + e.shape[1:])
+        g_j = gradient[:, 1]
+        g_j[:] = (np.swapaxes(b, -1, -2) @ omega_e[..., None])[..., 0]  # g_j = Bᵀ Ω e
         if weights is not None:
-            g_j *= weights[part, None, None]
-        g_i = -(np.swapaxes(adjoint, -1, -2) @ g_j)  # g_i = −Adᵀ g_j
-        terms = np.einsum("mi,mi->m", e, omega_e[..., 0])  # eᵀ Ω e per edge
-        return b, adjoint, np.stack([g_i[..., 0], g_j[..., 0]], axis=1), terms
+            g_j *= weights[part, None]
+        np.einsum("mji,mj->mi", adjoint, g_j, out=gradient[:, 0])  # einsum: see residuals.weighted_residuals
+        np.negative(gradient[:, 0], out=gradient[:, 0])  # g_i = −Adᵀ g_j
+        terms = np.einsum("mi,mi->m", e, omega_e)  # eᵀ Ω e per edge
+        return b, adjoint, gradient, terms
 
     b, adjoint, gradient, terms = _residuals.by_slices(residuals.shape[0], compute)  # for the caches
     return EdgeBlocks(

@@ -20,7 +20,7 @@ import numpy as np
 
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.linearize import EdgeBlocks, linearize
-from posegraph.solve.residuals import edge_errors, squared_norms, weighted_cost
+from posegraph.solve.residuals import edge_errors, weighted_residuals
 from posegraph.solve.unary import PriorErrors, linearize_priors, prior_errors, prior_squared_norms
 
 if TYPE_CHECKING:
@@ -61,6 +61,8 @@ class Evaluation:
     """The landmark measurements' residuals (:mod:`posegraph.solve.landmark_terms`), None without landmarks."""
     landmark_weights: np.ndarray | None = None
     """``(Σq,)`` IRLS weights of the landmark measurements, None without a loss or landmarks."""
+    weighted_residuals: np.ndarray | None = None
+    """``(m, d)`` ``Ω e`` per edge (the cost's and the gradient's common factor: the linearisation reuses it)."""
 
 
 class Objective:
@@ -84,21 +86,23 @@ class Objective:
 
             landmarks = landmark_errors(self.graph, poses, points)
         landmark_s = landmarks.squared if landmarks is not None else np.zeros(0)
+        omega_e = weighted_residuals(residuals, self.information)
         if self.loss is None:
-            cost = weighted_cost(residuals, self.information) + 0.5 * float(np.sum(prior_s)) + 0.5 * float(np.sum(landmark_s))
-            return Evaluation(relative, residuals, cost, priors=priors, points=points, landmarks=landmarks)
-        s = squared_norms(residuals, self.information)
+            cost = 0.5 * float(np.einsum("mi,mi->", residuals, omega_e)) + 0.5 * float(np.sum(prior_s)) + 0.5 * float(np.sum(landmark_s))
+            return Evaluation(relative, residuals, cost, priors=priors, points=points, landmarks=landmarks, weighted_residuals=omega_e)
+        s = np.einsum("mi,mi->m", residuals, omega_e)
         rho = self.loss.rho
         cost = 0.5 * (float(np.sum(rho(s))) + float(np.sum(rho(prior_s))) + float(np.sum(rho(landmark_s))))
         weights = np.asarray(self.loss.weight(s), dtype=np.float64)
         prior_weights = np.asarray(self.loss.weight(prior_s), dtype=np.float64) if priors is not None else None
         landmark_weights = np.asarray(self.loss.weight(landmark_s), dtype=np.float64) if landmarks is not None else None
-        return Evaluation(relative, residuals, cost, weights, priors, prior_weights, points, landmarks, landmark_weights)
+        return Evaluation(relative, residuals, cost, weights, priors, prior_weights, points, landmarks, landmark_weights, omega_e)
 
     def linearize(self, poses: np.ndarray, evaluation: Evaluation) -> EdgeBlocks:
         """Per-edge gradient and Hessian blocks at ``poses``, which ``evaluation`` evaluated (and the priors')."""
         errors = (evaluation.relative, evaluation.residuals)
-        blocks = linearize(poses, self.graph, self.information, errors, weights=evaluation.weights)
+        blocks = linearize(poses, self.graph, self.information, errors, weights=evaluation.weights,
+                           weighted=evaluation.weighted_residuals)
         if evaluation.priors is not None:
             blocks = replace(blocks, priors=linearize_priors(poses, self.graph, evaluation.priors, evaluation.prior_weights))
         if evaluation.landmarks is not None:

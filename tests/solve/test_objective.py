@@ -43,6 +43,19 @@ def test_unit_weights_give_bit_identical_blocks():
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("loss", [None, Cauchy(0.5)], ids=["plain", "cauchy"])
+def test_linearising_an_evaluation_reuses_its_weighted_residuals_exactly(loss):
+    """The evaluation keeps ``Ω e``; the linearisation from it equals the one that computes it again."""
+    graph = random_edges(np.random.default_rng(5), n=10, m=50, rotation_scale=1.0)
+    objective = Objective(graph, loss)
+    evaluation = objective.evaluate(graph.poses)
+    expected = (graph.information @ evaluation.residuals[..., None])[..., 0]
+    np.testing.assert_allclose(evaluation.weighted_residuals, expected, rtol=1e-13, atol=1e-13)
+    fused = objective.linearize(graph.poses, evaluation)
+    again = linearize(graph.poses, graph, errors=(evaluation.relative, evaluation.residuals), weights=evaluation.weights)
+    assert np.array_equal(fused.gradient, again.gradient) and fused.cost == again.cost
+
+
 def test_weights_scale_each_edges_blocks():
     rng = np.random.default_rng(5)
     graph = random_edges(rng, n=10, m=50, rotation_scale=1.0)
