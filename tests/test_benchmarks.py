@@ -312,3 +312,16 @@ def test_point_elimination_benchmark_runs_every_variant_to_the_same_optimum(tmp_
     assert figures["points"]["pose_pairs"] > 0 and 0 <= figures["points"]["points_in_amd_first_half"] <= 1
     table = bench.table({path.name: figures}).splitlines()
     assert len(table) == 2 + len(rows) and all(path.name in line for line in table[2:])
+
+
+def test_left_out_sightings_bound_reaches_the_replay_and_keeps_its_answer():
+    """The benchmark's bound is the one the replay runs with: at 0 nothing is left out, at 16 re-sightings
+    after a gap are (fewer analyses), and both end at the same cost within the optimiser's tolerance."""
+    pytest.importorskip("gtsam")
+    from benchmarks.bench_left_out_sightings import spawn
+
+    none, some = (spawn("gtsam:victoria_park.txt", 600, bound, 300) for bound in (0, 16))
+    assert none["left_out"] == 0 < some["left_out"], (none, some)
+    assert some["analyses"] < none["analyses"], (none, some)
+    assert some["final_cost"] == pytest.approx(none["final_cost"], rel=1e-7)
+    assert max(none["excess_max"], some["excess_max"]) <= 1e-6
