@@ -8,7 +8,8 @@ Design (``docs/incremental.md``):
   (odometry) leaves the estimate at the optimum of the new graph exactly, with no linear algebra.
 * **Gauss-Newton on the whole graph, its analysis held** (:mod:`posegraph.incremental.whole`). Every
   other edge, a prior, a landmark measurement that is not a first sighting, a removed edge or an anchor
-  released by a join runs Gauss-Newton on the whole graph (landmarks' points included) with the block pattern and CHOLMOD's symbolic factorisation kept from update to update; a fresh
+  released by a join runs Gauss-Newton on the whole graph (landmarks' points included) with the block
+  pattern and CHOLMOD's symbolic factorisation kept from update to update; a fresh
   step that raises the cost even halved six times, or 30 steps short of the tolerance, hand the update
   to the batch solver (:func:`posegraph.solve.optimize`, LM, warm), and so does a *drastic* update
   from the start (:data:`DRASTIC`).

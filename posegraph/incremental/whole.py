@@ -59,7 +59,6 @@ from posegraph.incremental.reuse import LastPoint
 from posegraph.linalg.cholmod import NotPositiveDefiniteError, SparseCholesky, block_permutation, fill_reducing_order
 from posegraph.model.graph import PoseGraph
 from posegraph.solve.objective import Objective
-from posegraph.solve.residuals import squared_norms
 from posegraph.solve.sparsity import analyze_pattern
 from posegraph.solve.unary import add_prior_gradient, add_prior_hessian
 
@@ -509,7 +508,7 @@ class WholeGraph:
                 break  # the step did what the model said: within tolerance without the check step
         else:
             return False, iteration, np.zeros(0)  # not within the tolerance yet
-        return True, iteration, self._terms(objective, evaluation)
+        return True, iteration, self._terms(evaluation)
 
     def _take_step(self, objective: Objective, half, made_here: bool, cost: float, n: int):
         """The step ``−H̃⁻¹g`` (the backward half of ``half``) applied to the store's poses; ``(outcome,
@@ -566,10 +565,10 @@ class WholeGraph:
         self._restore(before)
         return None
 
-    def _terms(self, objective: Objective, evaluation) -> np.ndarray:
-        """Each edge's ``eᵀΩe`` (``ρ`` of it) at ``evaluation``; the rest of its cost (priors, landmark
-        measurements) kept in ``unary_cost``, which spares the optimiser evaluating them again."""
-        s = squared_norms(evaluation.residuals, objective.information)
+    def _terms(self, evaluation) -> np.ndarray:
+        """Each edge's ``eᵀΩe`` (``ρ`` of it) at ``evaluation``, from the ``Ω e`` it holds; the rest of its
+        cost (priors, landmark measurements) kept in ``unary_cost``, which spares the optimiser evaluating them again."""
+        s = np.einsum("mi,mi->m", evaluation.residuals, evaluation.weighted_residuals)
         terms = s if self.loss is None else self.loss.rho(s)
         self.unary_cost = max(evaluation.cost - 0.5 * float(np.sum(terms)), 0.0)
         return terms
