@@ -100,3 +100,32 @@ def test_without_relinearising_old_edges_the_held_system_differs_from_h(monkeypa
             differs += np.abs(ours - dense).max() > 1e-6 * np.abs(dense).max()
     _, cost, best, excess = cost_excess(opt)
     assert differs > 0 and (excess <= 1e-6 or cost - best <= 1e-12)
+
+
+def test_edge_terms_are_the_blocks_summed_with_held_ends_left_out():
+    """``edge_terms`` equals a dense sum of the parts' blocks over the free block columns (an end at −1,
+    held, adds nothing), minus the unit diagonal of ``unit``; on the columns it names and nowhere else."""
+    from posegraph.incremental.held_factor import edge_terms
+
+    rng, d, p = np.random.default_rng(5), 3, 7
+    parts, dense = [], np.zeros((p * d, p * d))
+    for count in (5, 4):
+        ci, cj = rng.integers(-1, p, count), rng.integers(-1, p, count)
+        ci[0], cj[1] = -1, -1  # one edge held at each end
+        h_ii, h_jj, h_ij = (rng.normal(size=(count, d, d)) for _ in range(3))
+        parts.append((h_ii, h_jj, h_ij, ci, cj))
+        for k in range(count):
+            i, j = slice(d * ci[k], d * ci[k] + d), slice(d * cj[k], d * cj[k] + d)
+            if ci[k] >= 0:
+                dense[i, i] += h_ii[k]
+            if cj[k] >= 0:
+                dense[j, j] += h_jj[k]
+            if ci[k] >= 0 and cj[k] >= 0:
+                dense[i, j] += h_ij[k]
+                dense[j, i] += h_ij[k].T
+    unit = np.array([p - 1])
+    dense[d * (p - 1) :, d * (p - 1) :] -= np.eye(d)
+    terms = edge_terms(parts, d, unit)
+    expected = np.zeros_like(dense)
+    expected[np.ix_(terms.columns, terms.columns)] = terms.matrix
+    np.testing.assert_allclose(expected, dense, atol=1e-12)
